@@ -1,0 +1,36 @@
+"""ament_python package: installs the ament index marker, package.xml, config/ and the robot files."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'hybrid_force_controller'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    package_data={PACKAGE: ['robots/*.urdf']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/robots', glob(PACKAGE + '/robots/*.urdf')),
+    ],
+    install_requires=['setuptools', 'numpy'],
+    zip_safe=True,
+    maintainer='hybrid_force_controller developers',
+    maintainer_email='dev@example.com',
+    description='Adaptive hybrid force/motion controller for ROS 2 Jazzy',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'controller = hybrid_force_controller.controller_node:main',
+            'sim = sim_node.sim_node:main',
+            'paper = hybrid_force_controller.paper:main',
+            'bench = hybrid_force_controller.bench:main',
+            'demo = hybrid_force_controller.demo:main',
+            'report = hybrid_force_controller.report:main',
+        ],
+    },
+)

@@ -1,0 +1,155 @@
+"""The adaptive hybrid force/motion control law of [1], eqs. (5)/(6), (8), (11) and (26).
+
+[1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
+Interacting in Constrained Motion with Unknown Non-Rigid Environments".
+
+Pure numpy + pinocchio (through :class:`RobotModel`). Time is an argument: the caller
+passes ``dt``; nothing here reads a clock.
+
+Well-posed eq. (11). The literal error vector adds force-rate terms (N/s) to velocity
+terms (m/s). Here the S-part is scaled by a compliance ``c = 1/k_s`` (m/N) and the force
+rate is the model-based estimate ``fdot_hat = k_s n^T xdot`` (no differentiated force):
+
+    e = (I - S)(dxdot + lambda1 dx) + c S (dfdot_hat + lambda1 df + lambda2 h n)
+
+so with ``r = xdot - e`` (eq. 8) the normal part of r holds no velocity and
+``rdot`` needs no acceleration:
+
+    r    = (I - S)(xdot_d - lambda1 dx) + c n (fdot_d - lambda1 df_n - lambda2 h)
+    rdot = (I - S)(xddot_d - lambda1 dxdot) - n (lambda1 (n^T xdot - c fdot_d) + c lambda2 df_n)
+
+Along n this is a PI force loop on a velocity reference; its closed loop (e = 0) is
+``hddot + kappa lambda1 hdot + kappa lambda2 h = 0`` with ``kappa = k / k_s``, so eq. (29)
+becomes dimensionally consistent, ``lambda1^2 > 2 lambda2 k_max / k_s``. The node still
+enforces the paper's literal (29) as the conservative check.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import ControllerParams
+from .reference import Reference
+from .robot_model import RobotModel
+
+__all__ = ['ControlError', 'ControlOutput', 'HybridForceController', 'adapt_theta']
+
+
+class ControlError(ValueError):
+    """The control law met non-finite or inconsistent input it cannot act on."""
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One tick's result. Task quantities are in task coordinates (``model.task_axes``)."""
+
+    tau: np.ndarray
+    e: np.ndarray
+    x: np.ndarray
+    x_d: np.ndarray
+    f: np.ndarray
+    f_d: np.ndarray
+    theta_hat: np.ndarray
+    h: float
+    saturated: bool
+
+
+def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e: np.ndarray,
+                dt: float, theta_min: np.ndarray, theta_max: np.ndarray) -> np.ndarray:
+    """Adaptation law, eq. (26) of [1], with projection onto a box.
+
+    ``theta_hat_dot = -Gamma^-1 Y_x^T e``, integrated over ``dt`` (explicit Euler), then
+    clipped to ``[theta_min, theta_max]``. With a diagonal Gamma the clip is the
+    orthogonal projection in the Gamma metric, so the Lyapunov term
+    ``theta_tilde^T Gamma theta_tilde`` does not grow (the true theta lies in the box).
+    """
+    return np.clip(theta_hat - dt * (Gamma_inv @ (Y_x.T @ e)), theta_min, theta_max)
+
+
+class HybridForceController:
+    """Adaptive hybrid force/motion controller for one arm model.
+
+    ``set_params`` swaps the gains atomically (the next ``step`` uses the new set);
+    ``step`` computes one command from the latest state.
+    """
+
+    def __init__(self, model: RobotModel, params: ControllerParams) -> None:
+        self.model = model
+        self.set_params(params)
+        self.reset()
+
+    def set_params(self, params: ControllerParams) -> None:
+        """Install a validated parameter set; derived matrices are computed here, once."""
+        ax = list(self.model.task_axes)
+        n = params.n[ax]
+        self._derived = (params, n, np.eye(len(ax)) - np.outer(n, n),
+                         np.linalg.inv(params.Gamma), 1.0 / params.k_s)
+        self.params = params
+
+    def reset(self, theta_hat: np.ndarray | None = None) -> None:
+        """Restart the adaptation (``theta_hat0`` by default) and the force integral."""
+        p = self.params
+        self.theta_hat = (p.theta_hat0 if theta_hat is None else np.asarray(theta_hat)).copy()
+        self.h = 0.0
+        self.tau_prev: np.ndarray | None = None
+
+    def reference_velocity(self, kin, ref: Reference, f: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """r and rdot from eqs. (8) and (11) (scaled form, module docstring); also e, df_n."""
+        p, n, P_t, _, c = self._derived
+        ax = self.model.task_axes
+        dx = kin.x - ref.x_d_W[ax,]
+        dxdot = kin.xdot - ref.xdot_d_W[ax,]
+        df_n = float(n @ f) - p.f_d
+        l1, l2 = p.lambda1, p.lambda2
+        r = P_t @ (ref.xdot_d_W[ax,] - l1 * dx) - (c * l1 * df_n + l2 * self.h) * n
+        rdot = (P_t @ (ref.xddot_d_W[ax,] - l1 * dxdot)
+                - (l1 * float(n @ kin.xdot) + l2 * df_n) * n)
+        return r, rdot, kin.xdot - r, df_n
+
+    def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
+             dt: float) -> ControlOutput:
+        """One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
+
+        Parameters
+        ----------
+        q, qdot : joint positions and velocities, in ``model.joint_names`` order.
+        f_W : (3,) force the tool exerts on the surface, base frame, N (filtered).
+        ref : desired motion at this tick.
+        dt : time since the previous tick, s (> 0).
+
+        Returns ``tau = J^T u`` with ``u = Y_x theta_hat - K_D e + f`` clamped to the
+        effort limits (and the per-tick rate limit when set).
+        """
+        if not (dt > 0.0 and np.isfinite(dt)):
+            raise ControlError(f'dt must be finite and > 0, got {dt}')
+        p, n, _, Gamma_inv, _ = self._derived
+        model = self.model
+        kin = model.kinematics(q, qdot)
+        f = f_W[model.task_axes,]
+        r, rdot, e, df_n = self.reference_velocity(kin, ref, f)
+        qdot_r = np.linalg.solve(kin.J_ee, r)
+        qddot_r = np.linalg.solve(kin.J_ee, rdot - kin.Jdot_ee @ qdot_r)
+        Y_q = model.regressor_q(q, qdot, qdot_r, qddot_r)
+        tau = Y_q @ self.theta_hat + kin.J_ee.T @ (f - p.k_d * e)
+        if not np.all(np.isfinite(tau)):
+            raise ControlError('control law produced a non-finite effort')
+        tau_out = self._limit(tau)
+        # eq. (26): Y_x^T e = Y_q^T J^-T ... -> (J^-T Y_q)^T e = Y_q^T (J^-1 e)
+        e_q = np.linalg.solve(kin.J_ee, p.k_s * e)
+        self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, e_q, dt,
+                                     p.theta_min, p.theta_max)
+        self.h = float(np.clip(self.h + df_n * dt, -p.integral_limit, p.integral_limit))
+        ax = model.task_axes
+        return ControlOutput(tau_out, e, kin.x, ref.x_d_W[ax,], f, p.f_d * p.n, self.theta_hat,
+                             self.h, bool(np.any(tau_out != tau)))
+
+    def _limit(self, tau: np.ndarray) -> np.ndarray:
+        """Clamp to the per-joint effort limits and the optional per-tick rate limit."""
+        p = self.params
+        if p.max_effort_rate > 0.0 and self.tau_prev is not None:
+            tau = np.clip(tau, self.tau_prev - p.max_effort_rate, self.tau_prev + p.max_effort_rate)
+        tau = np.clip(tau, -p.effort_limits, p.effort_limits)
+        self.tau_prev = tau
+        return tau

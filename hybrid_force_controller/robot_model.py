@@ -1,0 +1,226 @@
+"""Rigid-body model of the arm on pinocchio: task-space terms and the regressor.
+
+Everything here is pure numpy + pinocchio. Reference [1] is Jafari et al., "An Adaptive
+Hybrid Force/Motion Control Design for Robot Manipulators Interacting in Constrained
+Motion with Unknown Non-Rigid Environments" (the paper in ``shared/seeds``).
+
+Frames: ``_W`` is the base (world) frame of the URDF root; the task coordinates are the
+translational coordinates of the end-effector frame origin along the base axes that the
+arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y plane,
+``(0, 1, 2)`` for a spatial arm).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+__all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class ModelError(ValueError):
+    """The robot description cannot be used (bad URDF, unknown link or joint, bad chain)."""
+
+
+def default_urdf_path() -> Path:
+    """Path of the bundled URDF of the paper's 2-link planar arm (section V of [1])."""
+    return Path(str(resources.files('hybrid_force_controller') / 'robots' / 'two_link_planar.urdf'))
+
+
+@dataclass(frozen=True)
+class TaskKinematics:
+    """End-effector kinematics at one state.
+
+    Attributes
+    ----------
+    p_W : (3,) end-effector position in the base frame, m.
+    R_W_ee : (3, 3) rotation of the end-effector frame in the base frame.
+    x : (m,) task coordinates, eq. (30) of [1].
+    xdot : (m,) task velocity, x_dot = J q_dot.
+    J_ee : (m, n) task Jacobian, eq. (31) of [1].
+    Jdot_ee : (m, n) its time derivative along q_dot.
+    """
+
+    p_W: np.ndarray
+    R_W_ee: np.ndarray
+    x: np.ndarray
+    xdot: np.ndarray
+    J_ee: np.ndarray
+    Jdot_ee: np.ndarray
+
+
+class RobotModel:
+    """A serial arm from a URDF with the paper's ``link_masses`` parameter set.
+
+    theta holds one mass per link that carries one; each link keeps its nominal geometry
+    (centre of mass and inertia per unit mass), so its 10 inertial parameters are
+    ``pi_i = theta_i * pi_i_nominal / m_i_nominal``: ``pi = P theta``. For the paper's arm
+    ``theta = [m1, m2]``.
+    """
+
+    def __init__(self, model: pin.Model, end_effector_link: str, gravity_W: np.ndarray) -> None:
+        if end_effector_link not in [f.name for f in model.frames]:
+            raise ModelError(f"end-effector link '{end_effector_link}' is not in the model")
+        if model.nq != model.nv:
+            raise ModelError('only revolute and prismatic joints are supported (nq != nv)')
+        model.gravity.linear = np.asarray(gravity_W, dtype=float)
+        self.model = model
+        self.data = model.createData()
+        self.frame_id = model.getFrameId(end_effector_link)
+        self.end_effector_link = end_effector_link
+        self.joint_names = tuple(model.names[i] for i in range(1, model.njoints))
+        self.n = model.nv
+        self._P, self.theta_names, self.theta_nominal = self._link_mass_map(model)
+        self.task_axes = self._detect_task_axes()
+        self.m = len(self.task_axes)
+        self.position_limits = (model.lowerPositionLimit.copy(), model.upperPositionLimit.copy())
+        self.effort_limits = model.effortLimit.copy()
+        self._zero = np.zeros(self.n)
+
+    @classmethod
+    def from_urdf(cls, urdf: str | Path | None = None, *, end_effector_link: str = 'tool0',
+                  gravity_W=(0.0, -9.81, 0.0)) -> 'RobotModel':
+        """Load a URDF file path or URDF XML string (``None``: the paper's 2-link arm)."""
+        src = default_urdf_path() if urdf is None else urdf
+        try:
+            if isinstance(src, Path) or not str(src).lstrip().startswith('<'):
+                if not Path(src).is_file():
+                    raise ModelError(f'URDF file not found: {src}')
+                model = pin.buildModelFromUrdf(str(src))
+            else:
+                model = pin.buildModelFromXML(str(src))
+        except ModelError:
+            raise
+        except Exception as exc:  # pinocchio raises plain RuntimeError/ValueError
+            raise ModelError(f'cannot parse URDF: {exc}') from exc
+        return cls(model, end_effector_link, np.asarray(gravity_W, dtype=float))
+
+    # ------------------------------------------------------------------ set-up helpers
+    @staticmethod
+    def _link_mass_map(model: pin.Model) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
+        """Matrix P with pi = P theta for the ``link_masses`` set (one column per massive link)."""
+        cols, names, masses = [], [], []
+        for j in range(1, model.njoints):
+            inertia = model.inertias[j]
+            if inertia.mass <= 0.0:
+                continue
+            col = np.zeros(10 * (model.njoints - 1))
+            col[10 * (j - 1):10 * j] = inertia.toDynamicParameters() / inertia.mass
+            cols.append(col)
+            names.append(f'm_{model.names[j]}')
+            masses.append(inertia.mass)
+        if not cols:
+            raise ModelError('no link carries mass: nothing to adapt')
+        return np.column_stack(cols), tuple(names), np.array(masses)
+
+    def _detect_task_axes(self) -> tuple[int, ...]:
+        """Base axes along which the end effector can move (planar arms give 2 axes)."""
+        rng = np.random.default_rng(0)
+        lo, hi = self.model.lowerPositionLimit, self.model.upperPositionLimit
+        span = np.zeros(3)
+        for _ in range(8):
+            q = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
+            J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id, _LWA)[:3]
+            span += np.abs(J).sum(axis=1)
+        axes = tuple(int(i) for i in np.flatnonzero(span > 1e-9 * max(span.max(), 1.0)))
+        if len(axes) > self.n:
+            raise ModelError(f'{self.n} joints cannot control a {len(axes)}-D task space '
+                             f'(redundant or under-actuated chains are not supported yet)')
+        if len(axes) < self.n:
+            raise ModelError(f'{self.n} joints for a {len(axes)}-D task space: redundant '
+                             'arms are not supported yet')
+        return axes
+
+    # ------------------------------------------------------------------ per-tick terms
+    def kinematics(self, q: np.ndarray, qdot: np.ndarray) -> TaskKinematics:
+        """Task position, velocity, Jacobian and its derivative, eqs. (30)-(31) of [1].
+
+        Uses pinocchio's ``computeJointJacobiansTimeVariation`` in the LOCAL_WORLD_ALIGNED
+        frame, whose linear rows are d p_W / dq and their time derivative.
+        """
+        model, data, fid, ax = self.model, self.data, self.frame_id, self.task_axes
+        pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
+        oMf = pin.updateFramePlacement(model, data, fid)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)[ax, :]
+        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[ax, :]
+        p_W = oMf.translation.copy()
+        return TaskKinematics(p_W, oMf.rotation.copy(), p_W[ax,], J @ qdot, J, Jdot)
+
+    def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
+                    qddot_r: np.ndarray) -> np.ndarray:
+        """Joint-space regressor: Y_q theta = M(q) qddot_r + C(q, qdot) qdot_r + g(q).
+
+        Eq. (4) of [1] in joint space with a reference velocity (Slotine-Li form). C is the
+        Christoffel matrix, so C(q, v) w = b(v, w) with b the symmetric bilinear velocity
+        term of the RNEA; by polarisation b(v, w) = (b(v+w) - b(v-w)) / 4, which gives
+        ``Y = R(q, v+w, 4a)/4 - R(q, v-w, 0)/4 + R(q, 0, 0)`` with R pinocchio's
+        ``computeJointTorqueRegressor``, mapped to theta by P.
+        """
+        model, data, z = self.model, self.data, self._zero
+        R_plus = pin.computeJointTorqueRegressor(model, data, q, qdot + qdot_r, 4.0 * qddot_r)
+        R_minus = pin.computeJointTorqueRegressor(model, data, q, qdot - qdot_r, z)
+        R_g = pin.computeJointTorqueRegressor(model, data, q, z, z)
+        return (0.25 * (R_plus - R_minus) + R_g) @ self._P
+
+    def joint_terms(self, q: np.ndarray, qdot: np.ndarray,
+                    theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """M(q), C(q, qdot) (Christoffel) and g(q), eqs. (32)-(34) of [1] (corrected).
+
+        Computed from the regressor so that they hold for any theta (default nominal):
+        column k of C is b(qdot, e_k).
+        """
+        theta = self.theta_nominal if theta is None else np.asarray(theta, dtype=float)
+        z, eye = self._zero, np.eye(self.n)
+        g = self.regressor_q(q, z, z, z) @ theta
+        M = np.column_stack([self.regressor_q(q, z, z, eye[k]) @ theta - g for k in range(self.n)])
+        C = np.column_stack([self.regressor_q(q, qdot, eye[k], z) @ theta - g
+                             for k in range(self.n)])
+        return M, C, g
+
+    def task_terms(self, q: np.ndarray, qdot: np.ndarray,
+                   theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """M_x, C_x and g_x of eqs. (35)-(37) of [1], corrected.
+
+        ``M_x = J^-T M J^-1``, ``C_x = J^-T (C - M J^-1 Jdot) J^-1``, ``g_x = J^-T g``.
+        (The paper prints J^T in (35) and ends (36) in J; see docs/errata.md.)
+        """
+        kin = self.kinematics(q, qdot)
+        M, C, g = self.joint_terms(q, qdot, theta)
+        J_inv = np.linalg.inv(kin.J_ee)
+        M_x = J_inv.T @ M @ J_inv
+        C_x = J_inv.T @ (C - M @ J_inv @ kin.Jdot_ee) @ J_inv
+        return M_x, C_x, J_inv.T @ g
+
+    def regressor_x(self, q: np.ndarray, qdot: np.ndarray, r: np.ndarray,
+                    rdot: np.ndarray) -> np.ndarray:
+        """Task-space regressor of eq. (6): Y_x theta = M_x rdot + C_x r + g_x.
+
+        With qdot_r = J^-1 r and qddot_r = J^-1 (rdot - Jdot qdot_r):
+        ``Y_x = J^-T Y_q(q, qdot, qdot_r, qddot_r)``.
+        """
+        kin = self.kinematics(q, qdot)
+        qdot_r = np.linalg.solve(kin.J_ee, r)
+        qddot_r = np.linalg.solve(kin.J_ee, rdot - kin.Jdot_ee @ qdot_r)
+        return np.linalg.solve(kin.J_ee.T, self.regressor_q(q, qdot, qdot_r, qddot_r))
+
+    def forward_dynamics(self, q: np.ndarray, qdot: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Joint accelerations from pinocchio's ABA (uses the model's true inertias)."""
+        return pin.aba(self.model, self.data, q, qdot, tau)
+
+    def with_theta(self, theta: np.ndarray) -> 'RobotModel':
+        """A copy whose link inertias are scaled to the masses ``theta`` (a plant variant)."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != self.theta_nominal.shape or np.any(theta <= 0):
+            raise ModelError(f'theta must be {len(self.theta_nominal)} positive masses')
+        model = self.model.copy()
+        pi = self._P @ theta
+        for j in range(1, model.njoints):
+            seg = pi[10 * (j - 1):10 * j]
+            if seg[0] > 0:
+                model.inertias[j] = pin.Inertia.FromDynamicParameters(seg)
+        return RobotModel(model, self.end_effector_link, model.gravity.linear.copy())

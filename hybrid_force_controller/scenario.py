@@ -1,0 +1,146 @@
+"""Closed loop of controller and plant, offline: the paper's scenario (section V of [1]).
+
+Pure numpy + pinocchio. The controller runs at ``rate_hz`` with zero-order hold; the plant
+integrates sub-steps inside each period; ``delay_steps`` delays the sensor-to-actuation
+path by whole control periods (a ROS loop between two processes adds 1-2).
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .control_law import HybridForceController
+from .environment import ElasticSurface
+from .filters import LowPassFilter
+from .params import ControllerParams, build_controller_params
+from .reference import SineReference, blend_start
+from .robot_model import RobotModel
+from .simulator import ArmSimulator
+
+__all__ = ['ScenarioConfig', 'ScenarioResult', 'make_controller_params', 'run_scenario']
+
+PAPER_Q0 = (0.657, 0.913)
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """The paper's scenario by default: k = 1700 N/m, 20 s, q(0) = (0.657, 0.913).
+
+    The surface passes through the tool's start position (touching, zero force), with
+    normal ``n`` (into the surface). ``theta_hat0_scale`` multiplies the true masses to
+    give the initial estimate. ``overrides`` are controller parameter values.
+    """
+
+    k: float = 1700.0
+    duration: float = 20.0
+    q0: tuple[float, ...] = PAPER_Q0
+    delay_steps: int = 0
+    noise_sigma: float = 0.0
+    seed: int = 0
+    theta_hat0_scale: float = 1.0
+    substeps: int = 4
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class ScenarioResult:
+    """Time series of one run (task coordinates padded to 3-D base-frame vectors)."""
+
+    t: np.ndarray
+    x_W: np.ndarray
+    x_d_W: np.ndarray
+    f_W: np.ndarray
+    f_true_W: np.ndarray
+    f_d_W: np.ndarray
+    theta_hat: np.ndarray
+    in_contact: np.ndarray
+    tau: np.ndarray
+    n_W: np.ndarray
+    theta_true: np.ndarray
+    theta_names: tuple[str, ...]
+
+
+def make_controller_params(model: RobotModel, overrides: dict[str, Any]) -> ControllerParams:
+    """Validated parameters for ``model`` with ``overrides`` applied to the defaults."""
+    return build_controller_params(
+        {'joints': list(model.joint_names), **overrides}, p=len(model.theta_nominal),
+        n_joints=model.n, task_axes=model.task_axes, theta_nominal=model.theta_nominal,
+        urdf_effort_limits=model.effort_limits)
+
+
+def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> ScenarioResult:
+    """Run the closed loop for ``cfg.duration`` seconds and return its time series."""
+    model = RobotModel.from_urdf() if model is None else model
+    theta0 = model.theta_nominal * cfg.theta_hat0_scale
+    params = make_controller_params(model, {'theta_hat0': theta0.tolist(), **cfg.overrides})
+    ctrl = HybridForceController(model, params)
+    p0 = model.kinematics(np.array(cfg.q0), np.zeros(model.n)).p_W
+    sim = ArmSimulator(model, ElasticSurface.create(cfg.k, p0, params.n), np.array(cfg.q0),
+                       substeps=cfg.substeps, noise_sigma=cfg.noise_sigma, seed=cfg.seed)
+    sine = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
+    dt = 1.0 / params.rate_hz
+    steps = int(round(cfg.duration / dt))
+    offset = _start_offset(params, sine, p0)
+    filt = LowPassFilter(params.force_filter_hz)
+    log = _Log(steps, len(theta0))
+    meas = sim.measure()
+    pending = deque([meas] * (cfg.delay_steps + 1), maxlen=cfg.delay_steps + 1)
+    for k in range(steps):
+        seen = pending[0]
+        filt.update(seen.f_W, dt)
+        ref = blend_start(sine(seen.t), offset, seen.t, params.ref_blend_time)
+        out = ctrl.step(seen.q, seen.qdot, filt.value, ref, dt)
+        log.record(k, meas, sine(k * dt).x_d_W, ctrl.theta_hat, out.tau)
+        meas = sim.step(out.tau, dt)
+        pending.append(meas)
+    return log.result(model, params, dt)
+
+
+def _start_offset(params: ControllerParams, sine: SineReference, p0: np.ndarray) -> np.ndarray:
+    """Tangential offset from x_d(0) to the start position (blended out, reference.py)."""
+    P_t = np.eye(3) - np.outer(params.n, params.n)
+    return P_t @ (p0 - sine(0.0).x_d_W)
+
+
+class _Log:
+    """Preallocated arrays for one run."""
+
+    def __init__(self, steps: int, p: int) -> None:
+        z3 = lambda: np.zeros((steps, 3))  # noqa: E731
+        self.x, self.x_d, self.f, self.f_true = z3(), z3(), z3(), z3()
+        self.theta = np.zeros((steps, p))
+        self.contact = np.zeros(steps, dtype=bool)
+        self.tau: list[np.ndarray] = []
+
+    def record(self, k: int, meas, x_d_W, theta_hat, tau) -> None:
+        self.x[k], self.x_d[k], self.f[k], self.f_true[k] = meas.p_W, x_d_W, meas.f_W, meas.f_true_W
+        self.theta[k], self.contact[k] = theta_hat, meas.in_contact
+        self.tau.append(tau)
+
+    def result(self, model: RobotModel, params: ControllerParams, dt: float) -> ScenarioResult:
+        steps = len(self.contact)
+        return ScenarioResult(np.arange(steps) * dt, self.x, self.x_d, self.f, self.f_true,
+                              np.tile(params.f_d * params.n, (steps, 1)), self.theta,
+                              self.contact, np.array(self.tau), params.n.copy(),
+                              model.theta_nominal.copy(), model.theta_names)
+
+
+def quick_metrics(res: ScenarioResult, t_start: float = 5.0) -> dict[str, float]:
+    """Tracking figures over t >= t_start (the report's metrics live in analysis.py)."""
+    sel = res.t >= t_start
+    n = res.n_W
+    P_t = np.eye(3) - np.outer(n, n)
+    ex = np.linalg.norm((res.x_W - res.x_d_W)[sel] @ P_t, axis=1)
+    ef = (res.f_true_W - res.f_d_W)[sel] @ n
+    first = int(np.argmax(res.in_contact)) if res.in_contact.any() else len(res.t)
+    dt = res.t[1] - res.t[0]
+    return {'rms_x': float(np.sqrt(np.mean(ex**2))), 'max_x': float(ex.max()),
+            'rms_f': float(np.sqrt(np.mean(ef**2))), 'max_f': float(np.abs(ef).max()),
+            'lost': float((~res.in_contact[first:]).sum() * dt),
+            'theta': res.theta_hat[-1].round(3).tolist()}
+
+
+_ = replace  # re-exported for callers building config variants

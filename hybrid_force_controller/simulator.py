@@ -1,0 +1,108 @@
+"""Offline plant: rigid-body arm (pinocchio ABA) against the elastic surface.
+
+The same plant runs inside the ``sim`` node. Pure numpy + pinocchio; the caller passes
+``dt`` and the joint efforts, nothing reads a clock.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .environment import ElasticSurface
+from .robot_model import RobotModel
+
+__all__ = ['ArmSimulator', 'Measurement', 'SimulatorError']
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class SimulatorError(ValueError):
+    """Bad simulator input (wrong effort length, non-finite effort, bad state)."""
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the arm's sensors report after a step.
+
+    ``f_W`` is the force the tool exerts on the surface in the base frame as the wrist
+    sensor measures it (with noise when configured); ``f_true_W`` is the noise-free value.
+    """
+
+    t: float
+    q: np.ndarray
+    qdot: np.ndarray
+    tau: np.ndarray
+    p_W: np.ndarray
+    R_W_ee: np.ndarray
+    f_W: np.ndarray
+    f_true_W: np.ndarray
+    in_contact: bool
+
+
+class ArmSimulator:
+    """Semi-implicit Euler integration with ``substeps`` per control period.
+
+    Each sub-step: contact force from the surface, eqs. (12)-(13) of [1], mapped to the
+    joints by ``-J_p^T f``, optional viscous + Coulomb joint friction (off by default),
+    then ABA. Efforts are held (zero-order hold) over the whole period.
+    """
+
+    def __init__(self, model: RobotModel, surface: ElasticSurface | None, q0: np.ndarray,
+                 qdot0: np.ndarray | None = None, *, substeps: int = 4,
+                 noise_sigma: float = 0.0, seed: int = 0,
+                 friction_viscous: float = 0.0, friction_coulomb: float = 0.0) -> None:
+        self.model = model
+        self.surface = surface
+        self.q = np.array(q0, dtype=float)
+        self.qdot = np.zeros(model.n) if qdot0 is None else np.array(qdot0, dtype=float)
+        if self.q.shape != (model.n,) or self.qdot.shape != (model.n,):
+            raise SimulatorError(f'initial state must have {model.n} joints')
+        if substeps < 1:
+            raise SimulatorError('substeps must be >= 1')
+        self.substeps = int(substeps)
+        self.noise_sigma = float(noise_sigma)
+        self.rng = np.random.default_rng(seed)
+        self.friction = (float(friction_viscous), float(friction_coulomb))
+        self.t = 0.0
+        self.tau = np.zeros(model.n)
+
+    def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, pin.SE3]:
+        """Contact force on the surface (base frame) and its joint torque ``-J_p^T f``."""
+        m, d, fid = self.model.model, self.model.data, self.model.frame_id
+        J = pin.computeFrameJacobian(m, d, q, fid, _LWA)
+        oMf = pin.updateFramePlacement(m, d, fid)
+        if self.surface is None:
+            return np.zeros(3), np.zeros(self.model.n), oMf
+        f_W = self.surface.force(oMf.translation)
+        return f_W, -(J[:3].T @ f_W), oMf
+
+    def step(self, tau: np.ndarray, dt: float) -> Measurement:
+        """Advance ``dt`` seconds with the efforts ``tau`` held constant."""
+        tau = np.asarray(tau, dtype=float)
+        if tau.shape != (self.model.n,) or not np.all(np.isfinite(tau)):
+            raise SimulatorError(f'effort must be {self.model.n} finite values, got {tau}')
+        if not (dt > 0.0 and np.isfinite(dt)):
+            raise SimulatorError(f'dt must be finite and > 0, got {dt}')
+        self.tau = tau.copy()
+        h = dt / self.substeps
+        b, fc = self.friction
+        q, qdot = self.q, self.qdot
+        for _ in range(self.substeps):
+            _, tau_c, _ = self._contact(q)
+            tau_f = b * qdot + fc * np.tanh(qdot / 1e-3) if (b or fc) else 0.0
+            qddot = self.model.forward_dynamics(q, qdot, tau + tau_c - tau_f)
+            qdot = qdot + h * qddot
+            q = q + h * qdot
+        self.q, self.qdot = q, qdot
+        self.t += dt
+        return self.measure()
+
+    def measure(self) -> Measurement:
+        """Sensor readings at the current state (noise drawn from the seeded generator)."""
+        f_true, _, oMf = self._contact(self.q)
+        f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
+        return Measurement(self.t, self.q.copy(), self.qdot.copy(), self.tau.copy(),
+                           oMf.translation.copy(), oMf.rotation.copy(), f_meas, f_true,
+                           bool(np.any(f_true != 0.0)))

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['ElasticSurface', 'SurfaceError']
+__all__ = ['ElasticSurface', 'SurfaceError', 'f_W_from_sensor_wrench', 'sensor_wrench_from_f_W']
 
 
 class SurfaceError(ValueError):
@@ -57,3 +57,17 @@ class ElasticSurface:
         """Contact force the tool exerts on the surface, base frame, eqs. (12)-(13)."""
         depth = self.penetration(p_W)
         return (self.k * depth) * self.n_W if depth > 0.0 else np.zeros(3)
+
+
+def sensor_wrench_from_f_W(R_W_ee: np.ndarray, f_W: np.ndarray) -> np.ndarray:
+    """Force the environment exerts on the tool, in the end-effector frame: ``-R^T f_W``.
+
+    This is what a wrist force/torque sensor reports (ROS convention of
+    force_torque_sensor_broadcaster: the external wrench acting on the sensor frame).
+    """
+    return -(R_W_ee.T @ f_W)
+
+
+def f_W_from_sensor_wrench(R_W_frame: np.ndarray, F_frame: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`sensor_wrench_from_f_W`: the force the tool exerts, base frame."""
+    return -(R_W_frame @ F_frame)

@@ -73,6 +73,7 @@ class RobotModel:
         self.data = model.createData()
         self.frame_id = model.getFrameId(end_effector_link)
         self.end_effector_link = end_effector_link
+        self.base_link = model.frames[1].name if len(model.frames) > 1 else 'universe'
         self.joint_names = tuple(model.names[i] for i in range(1, model.njoints))
         self.n = model.nv
         self._P, self.theta_names, self.theta_nominal = self._link_mass_map(model)
@@ -207,6 +208,13 @@ class RobotModel:
         qdot_r = np.linalg.solve(kin.J_ee, r)
         qddot_r = np.linalg.solve(kin.J_ee, rdot - kin.Jdot_ee @ qdot_r)
         return np.linalg.solve(kin.J_ee.T, self.regressor_q(q, qdot, qdot_r, qddot_r))
+
+    def frame_rotation(self, q: np.ndarray, frame: str) -> np.ndarray:
+        """Rotation of a model frame in the base frame at ``q``; ModelError if unknown."""
+        if not self.model.existFrame(frame):
+            raise ModelError(f"unknown frame '{frame}'")
+        pin.forwardKinematics(self.model, self.data, q)
+        return pin.updateFramePlacement(self.model, self.data, self.model.getFrameId(frame)).rotation.copy()
 
     def forward_dynamics(self, q: np.ndarray, qdot: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Joint accelerations from pinocchio's ABA (uses the model's true inertias)."""

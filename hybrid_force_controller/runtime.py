@@ -1,0 +1,229 @@
+"""What the controller node does between messages, as plain arrays (no rclpy here).
+
+The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
+converts the result back. This module owns the latest inputs, their staleness, the force
+filter, the reference, the safe mode and the counters; the control law itself is
+:class:`~hybrid_force_controller.control_law.HybridForceController`. Times are seconds on
+the caller's clock (node time, so ``use_sim_time`` works); nothing here reads a clock.
+
+Safe mode (inputs older than ``state_timeout``): ``tau = g_hat(q) - D qdot`` with
+``g_hat`` the adapted gravity torque and joint damping ``D = k_d * (J^T J)`` mapped from
+the task damping, clamped to the effort limits; theta_hat and the force integral h are
+frozen. On recovery the reference restarts from where the arm is and blends back into
+the sine over ``ref_blend_time``, so the effort does not jump.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .control_law import ControlError, HybridForceController
+from .environment import f_W_from_sensor_wrench
+from .filters import LowPassFilter
+from .params import ControllerParams, build_controller_params
+from .reference import Reference, SineReference, blend_start
+from .robot_model import ModelError, RobotModel
+
+__all__ = ['ControllerRuntime', 'InputError', 'TickOutput']
+
+
+class InputError(ValueError):
+    """A message the controller cannot use; the text names the problem."""
+
+
+@dataclass
+class TickOutput:
+    """One tick for the node to publish (3-D vectors in the base frame)."""
+
+    tau: np.ndarray | None
+    mode: str
+    x_W: np.ndarray
+    x_d_W: np.ndarray
+    f_W: np.ndarray
+    f_d_W: np.ndarray
+    e_W: np.ndarray
+    theta_hat: np.ndarray
+    theta_names: tuple[str, ...]
+    in_contact: bool
+    counters: dict[str, int] = field(default_factory=dict)
+    status: str = ''
+
+
+class ControllerRuntime:
+    """Latest inputs + control law + safety logic for one arm."""
+
+    CONTACT_FRACTION = 0.1  # in contact when n^T f > 0.1 f_d (and > 0.05 N)
+
+    def __init__(self, model: RobotModel, params: ControllerParams) -> None:
+        self.model = model
+        self.ctrl = HybridForceController(model, params)
+        self.counters = {'joint_state_dropped': 0, 'wrench_dropped': 0, 'ticks': 0,
+                         'safe_mode_entries': 0, 'control_errors': 0, 'saturated_ticks': 0}
+        self._q = self._qdot = None
+        self._t_state = self._t_wrench = self._t_tick = -np.inf
+        self._F = np.zeros(3)
+        self._R_frame: str | None = None
+        self._new_wrench = False
+        self._x_ext: np.ndarray | None = None
+        self._t0: float | None = None
+        self.mode = 'waiting'
+        self.set_params(params)
+
+    @property
+    def params(self) -> ControllerParams:
+        return self.ctrl.params
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.params.joints
+
+    def validate(self, values: dict[str, Any]) -> ControllerParams:
+        """Full set of parameter values -> ControllerParams (ParameterValidationError)."""
+        m = self.model
+        return build_controller_params(values, p=len(m.theta_nominal), n_joints=m.n,
+                                       task_axes=m.task_axes, theta_nominal=m.theta_nominal,
+                                       urdf_effort_limits=m.effort_limits)
+
+    def set_params(self, params: ControllerParams) -> None:
+        """Install a validated set atomically; it takes effect on the next tick."""
+        self._index = self._joint_index(params.joints)
+        self._cmd_order = [self._index[j] for j in params.joints]
+        self.ctrl.set_params(params)
+        self._filter = LowPassFilter(params.force_filter_hz)
+        self._sine = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
+        self._x_ext = None
+
+    def _joint_index(self, joints: Sequence[str]) -> dict[str, int]:
+        unknown = [j for j in joints if j not in self.model.joint_names]
+        if unknown:
+            raise InputError(f'joints not in the robot model: {unknown}')
+        return {name: i for i, name in enumerate(self.model.joint_names)}
+
+    # ------------------------------------------------------------------ inputs
+    def on_joint_state(self, names: Sequence[str], q: Sequence[float],
+                       qdot: Sequence[float] | None, t: float) -> None:
+        """Store a joint state mapped by name (reordered and extra joints are fine)."""
+        try:
+            self._q, self._qdot = self._map_joints(names, q, qdot)
+        except InputError:
+            self.counters['joint_state_dropped'] += 1
+            raise
+        self._t_state = max(self._t_state, t)
+
+    def _map_joints(self, names, q, qdot) -> tuple[np.ndarray, np.ndarray]:
+        if len(q) != len(names) or (qdot is not None and len(qdot) not in (0, len(names))):
+            raise InputError('joint state: names, positions and velocities differ in length')
+        pos = {n: i for i, n in enumerate(names)}
+        missing = [j for j in self.params.joints if j not in pos]
+        if missing:
+            raise InputError(f'joint state lacks controlled joint(s) {missing}')
+        idx = [pos[j] for j in self.model.joint_names]
+        q_arr = np.asarray(q, dtype=float)[idx]
+        v_arr = np.asarray(qdot, dtype=float)[idx] if qdot is not None and len(qdot) else None
+        if v_arr is None:
+            raise InputError('joint state has no velocities')
+        if not (np.all(np.isfinite(q_arr)) and np.all(np.isfinite(v_arr))):
+            raise InputError('joint state holds NaN/Inf')
+        return q_arr, v_arr
+
+    def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
+        """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
+        F = np.asarray(force, dtype=float)
+        problem = None
+        if F.shape != (3,) or not np.all(np.isfinite(F)):
+            problem = f'wrench holds NaN/Inf or is not 3-D: {F.tolist()}'
+        elif not self.model.model.existFrame(frame_id or ' '):
+            problem = f"wrench frame '{frame_id}' is not a frame of the robot model"
+        elif t < self._t_wrench:
+            problem = f'wrench stamp {t:.6f} is older than the last one {self._t_wrench:.6f}'
+        if problem:
+            self.counters['wrench_dropped'] += 1
+            raise InputError(problem)
+        self._F, self._R_frame, self._t_wrench, self._new_wrench = F, frame_id, t, True
+
+    def on_reference(self, x_d_W: Sequence[float], t: float) -> None:
+        """Hold a user reference point (base frame) instead of the sine."""
+        x = np.asarray(x_d_W, dtype=float)
+        if x.shape != (3,) or not np.all(np.isfinite(x)):
+            raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
+        self._x_ext = x
+
+    # ------------------------------------------------------------------ tick
+    def tick(self, t: float) -> TickOutput:
+        """Compute the command for time ``t`` from the latest inputs."""
+        self.counters['ticks'] += 1
+        period = 1.0 / self.params.rate_hz
+        dt = float(np.clip(t - self._t_tick, 0.1 * period, 10.0 * period))
+        self._t_tick = max(self._t_tick, t)
+        if self._q is None or self._R_frame is None:
+            return self._output(None, 'waiting', None, 'waiting for joint states and wrench')
+        f_W = self._filtered_force(dt)
+        stale = t - min(self._t_state, self._t_wrench) > self.params.state_timeout
+        if stale:
+            return self._safe(f_W, 'inputs older than state_timeout: safe mode')
+        if self.mode != 'running':
+            self._start(t)
+        try:
+            out = self.ctrl.step(self._q, self._qdot, f_W, self._reference(), dt)
+        except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
+            self.counters['control_errors'] += 1
+            return self._safe(f_W, f'control law failed: {exc}')
+        self.counters['saturated_ticks'] += int(out.saturated)
+        return self._output(out.tau, 'running', f_W, 'running', e=out.e)
+
+    def _filtered_force(self, dt: float) -> np.ndarray:
+        if self._new_wrench:
+            R = (np.eye(3) if self._R_frame == self.model.base_link
+                 else self.model.frame_rotation(self._q, self._R_frame))
+            self._filter.update(f_W_from_sensor_wrench(R, self._F), dt)
+            self._new_wrench = False
+        return self._filter.value
+
+    def _start(self, t: float) -> None:
+        """(Re)start tracking: the reference blends from where the arm is now."""
+        self.mode = 'running'
+        self._t0 = t if self._t0 is None else self._t0
+        self._t_blend0 = t
+        p_W = self.model.kinematics(self._q, self._qdot).p_W
+        n = self.params.n
+        self._offset = (np.eye(3) - np.outer(n, n)) @ (p_W - self._sine(t - self._t0).x_d_W)
+
+    def _reference(self) -> Reference:
+        """Reference at the joint state's stamp (consistent with the delayed measurement)."""
+        if self._x_ext is not None:
+            z = np.zeros(3)
+            return Reference(self._x_ext, z, z)
+        ts = self._t_state - self._t0
+        ref = self._sine(ts)
+        return blend_start(ref, self._offset, self._t_state - self._t_blend0,
+                           self.params.ref_blend_time)
+
+    def _safe(self, f_W: np.ndarray, status: str) -> TickOutput:
+        """Gravity compensation with joint damping; adaptation and force loop frozen."""
+        if self.mode != 'safe':
+            self.counters['safe_mode_entries'] += 1
+        self.mode = 'safe'
+        kin = self.model.kinematics(self._q, self._qdot)
+        z = np.zeros(self.model.n)
+        g_hat = self.model.regressor_q(self._q, z, z, z) @ self.ctrl.theta_hat
+        tau = g_hat - self.params.k_d * (kin.J_ee.T @ kin.xdot)
+        if not np.all(np.isfinite(tau)):
+            tau = np.zeros(self.model.n)
+        tau = np.clip(tau, -self.params.effort_limits, self.params.effort_limits)
+        return self._output(tau, 'safe', f_W, status)
+
+    def _output(self, tau, mode: str, f_W, status: str, e=None) -> TickOutput:
+        p, ax = self.params, list(self.model.task_axes)
+        x_W = np.zeros(3) if self._q is None else self.model.kinematics(self._q, self._qdot).p_W
+        f = np.zeros(3) if f_W is None else f_W
+        e_W = np.zeros(3)
+        if e is not None:
+            e_W[ax] = e
+        x_d = self._reference().x_d_W if mode == 'running' else x_W
+        tau = None if tau is None else tau[self._cmd_order]
+        return TickOutput(tau, mode, x_W, x_d, f, p.f_d * p.n, e_W, self.ctrl.theta_hat.copy(),
+                          self.model.theta_names,
+                          bool(p.n @ f > max(0.05, self.CONTACT_FRACTION * p.f_d)),
+                          dict(self.counters), status)

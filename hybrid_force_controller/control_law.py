@@ -25,6 +25,7 @@ enforces the paper's literal (29) as the conservative check.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,13 +99,12 @@ class HybridForceController:
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """r and rdot from eqs. (8) and (11) (scaled form, module docstring); also e, df_n."""
         p, n, P_t, _, c = self._derived
-        ax = self.model.task_axes
-        dx = kin.x - ref.x_d_W[ax,]
-        dxdot = kin.xdot - ref.xdot_d_W[ax,]
+        ax = self.model.task_index
+        xdot_d = ref.xdot_d_W[ax]
         df_n = float(n @ f) - p.f_d
         l1, l2 = p.lambda1, p.lambda2
-        r = P_t @ (ref.xdot_d_W[ax,] - l1 * dx) - (c * l1 * df_n + l2 * self.h) * n
-        rdot = (P_t @ (ref.xddot_d_W[ax,] - l1 * dxdot)
+        r = P_t @ (xdot_d - l1 * (kin.x - ref.x_d_W[ax])) - (c * l1 * df_n + l2 * self.h) * n
+        rdot = (P_t @ (ref.xddot_d_W[ax] - l1 * (kin.xdot - xdot_d))
                 - (l1 * float(n @ kin.xdot) + l2 * df_n) * n)
         return r, rdot, kin.xdot - r, df_n
 
@@ -122,28 +122,29 @@ class HybridForceController:
         Returns ``tau = J^T u`` with ``u = Y_x theta_hat - K_D e + f`` clamped to the
         effort limits (and the per-tick rate limit when set).
         """
-        if not (dt > 0.0 and np.isfinite(dt)):
+        if not (dt > 0.0 and math.isfinite(dt)):
             raise ControlError(f'dt must be finite and > 0, got {dt}')
         p, n, _, Gamma_inv, _ = self._derived
         model = self.model
         kin = model.kinematics(q, qdot)
-        f = f_W[model.task_axes,]
+        f = f_W[model.task_index]
         r, rdot, e, df_n = self.reference_velocity(kin, ref, f)
-        qdot_r = np.linalg.solve(kin.J_ee, r)
-        qddot_r = np.linalg.solve(kin.J_ee, rdot - kin.Jdot_ee @ qdot_r)
+        J_inv = np.linalg.inv(kin.J_ee)
+        qdot_r = J_inv @ r
+        qddot_r = J_inv @ (rdot - kin.Jdot_ee @ qdot_r)
         Y_q = model.regressor_q(q, qdot, qdot_r, qddot_r)
         tau = Y_q @ self.theta_hat + kin.J_ee.T @ (f - p.k_d * e)
-        if not np.all(np.isfinite(tau)):
+        if not math.isfinite(tau.sum()):
             raise ControlError('control law produced a non-finite effort')
         tau_out = self._limit(tau)
         # eq. (26): Y_x^T e = Y_q^T J^-T ... -> (J^-T Y_q)^T e = Y_q^T (J^-1 e)
-        e_q = np.linalg.solve(kin.J_ee, p.k_s * e)
+        e_q = J_inv @ (p.k_s * e)
         self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, e_q, dt,
                                      p.theta_min, p.theta_max)
-        self.h = float(np.clip(self.h + df_n * dt, -p.integral_limit, p.integral_limit))
-        ax = model.task_axes
-        return ControlOutput(tau_out, e, kin.x, ref.x_d_W[ax,], f, p.f_d * p.n, self.theta_hat,
-                             self.h, bool(np.any(tau_out != tau)))
+        self.h = min(max(self.h + df_n * dt, -p.integral_limit), p.integral_limit)
+        return ControlOutput(tau_out, e, kin.x, ref.x_d_W[model.task_index], f, p.f_d * p.n,
+                             self.theta_hat,
+                             self.h, bool((tau_out != tau).any()))
 
     def _limit(self, tau: np.ndarray) -> np.ndarray:
         """Clamp to the per-joint effort limits and the optional per-tick rate limit."""

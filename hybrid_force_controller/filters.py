@@ -41,7 +41,7 @@ class LowPassFilter:
 
         Returns False (and keeps the state) when ``u`` holds NaN/Inf.
         """
-        if not np.all(np.isfinite(u)):
+        if not math.isfinite(float(np.sum(u))):
             return False
         if not self._ready or self.cutoff_hz <= 0.0:
             self._y[:] = u

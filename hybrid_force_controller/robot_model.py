@@ -79,6 +79,10 @@ class RobotModel:
         self._P, self.theta_names, self.theta_nominal = self._link_mass_map(model)
         self.task_axes = self._detect_task_axes()
         self.m = len(self.task_axes)
+        a0, a1 = self.task_axes[0], self.task_axes[-1]
+        contiguous = self.task_axes == tuple(range(a0, a1 + 1))
+        # a slice gives views (no copy) on the hot path; fancy indexing otherwise
+        self.task_index = slice(a0, a1 + 1) if contiguous else list(self.task_axes)
         self.position_limits = (model.lowerPositionLimit.copy(), model.upperPositionLimit.copy())
         self.effort_limits = model.effortLimit.copy()
         self._zero = np.zeros(self.n)
@@ -144,13 +148,13 @@ class RobotModel:
         Uses pinocchio's ``computeJointJacobiansTimeVariation`` in the LOCAL_WORLD_ALIGNED
         frame, whose linear rows are d p_W / dq and their time derivative.
         """
-        model, data, fid, ax = self.model, self.data, self.frame_id, self.task_axes
+        model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
         pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
         oMf = pin.updateFramePlacement(model, data, fid)
-        J = pin.getFrameJacobian(model, data, fid, _LWA)[ax, :]
-        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[ax, :]
-        p_W = oMf.translation.copy()
-        return TaskKinematics(p_W, oMf.rotation.copy(), p_W[ax,], J @ qdot, J, Jdot)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)[ax]
+        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[ax]
+        p_W = oMf.translation
+        return TaskKinematics(p_W, oMf.rotation, p_W[ax], J @ qdot, J, Jdot)
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:

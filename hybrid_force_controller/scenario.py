@@ -93,9 +93,11 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> Scenar
         filt.update(seen.f_W, dt)
         ref = blend_start(sine(seen.t), offset, seen.t, params.ref_blend_time)
         out = ctrl.step(seen.q, seen.qdot, filt.value, ref, dt)
-        log.record(k, meas, sine(k * dt).x_d_W, ctrl.theta_hat, out.tau)
+        log.record(k, meas, ctrl.theta_hat, out.tau)
         meas = sim.step(out.tau, dt)
         pending.append(meas)
+    t = np.arange(steps) * dt
+    log.x_d[:] = sine.center_W + np.outer(np.sin(sine.omega * t), sine.amplitude_W)
     return log.result(model, params, dt)
 
 
@@ -115,8 +117,8 @@ class _Log:
         self.contact = np.zeros(steps, dtype=bool)
         self.tau: list[np.ndarray] = []
 
-    def record(self, k: int, meas, x_d_W, theta_hat, tau) -> None:
-        self.x[k], self.x_d[k], self.f[k], self.f_true[k] = meas.p_W, x_d_W, meas.f_W, meas.f_true_W
+    def record(self, k: int, meas, theta_hat, tau) -> None:
+        self.x[k], self.f[k], self.f_true[k] = meas.p_W, meas.f_W, meas.f_true_W
         self.theta[k], self.contact[k] = theta_hat, meas.in_contact
         self.tau.append(tau)
 

@@ -5,6 +5,7 @@ The same plant runs inside the ``sim`` node. Pure numpy + pinocchio; the caller 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +68,7 @@ class ArmSimulator:
         self.friction = (float(friction_viscous), float(friction_coulomb))
         self.t = 0.0
         self.tau = np.zeros(model.n)
+        self._tau_c: np.ndarray | None = None  # contact torque at the current q, if known
 
     def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, pin.SE3]:
         """Contact force on the surface (base frame) and its joint torque ``-J_p^T f``."""
@@ -81,28 +83,32 @@ class ArmSimulator:
     def step(self, tau: np.ndarray, dt: float) -> Measurement:
         """Advance ``dt`` seconds with the efforts ``tau`` held constant."""
         tau = np.asarray(tau, dtype=float)
-        if tau.shape != (self.model.n,) or not np.all(np.isfinite(tau)):
+        if tau.shape != (self.model.n,) or not math.isfinite(tau.sum()):
             raise SimulatorError(f'effort must be {self.model.n} finite values, got {tau}')
-        if not (dt > 0.0 and np.isfinite(dt)):
+        if not (dt > 0.0 and math.isfinite(dt)):
             raise SimulatorError(f'dt must be finite and > 0, got {dt}')
         self.tau = tau.copy()
         h = dt / self.substeps
         b, fc = self.friction
         q, qdot = self.q, self.qdot
-        for _ in range(self.substeps):
-            _, tau_c, _ = self._contact(q)
-            tau_f = b * qdot + fc * np.tanh(qdot / 1e-3) if (b or fc) else 0.0
-            qddot = self.model.forward_dynamics(q, qdot, tau + tau_c - tau_f)
+        for i in range(self.substeps):
+            # the first sub-step starts where measure() already evaluated the contact
+            tau_c = self._tau_c if i == 0 and self._tau_c is not None else self._contact(q)[1]
+            tau_net = tau + tau_c
+            if b or fc:
+                tau_net = tau_net - (b * qdot + fc * np.tanh(qdot / 1e-3))
+            qddot = self.model.forward_dynamics(q, qdot, tau_net)
             qdot = qdot + h * qddot
             q = q + h * qdot
         self.q, self.qdot = q, qdot
+        self._tau_c = None
         self.t += dt
         return self.measure()
 
     def measure(self) -> Measurement:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""
-        f_true, _, oMf = self._contact(self.q)
+        f_true, self._tau_c, oMf = self._contact(self.q)
         f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
         return Measurement(self.t, self.q.copy(), self.qdot.copy(), self.tau.copy(),
                            oMf.translation.copy(), oMf.rotation.copy(), f_meas, f_true,
-                           bool(np.any(f_true != 0.0)))
+                           bool(f_true.any()))

@@ -1,0 +1,330 @@
+"""Read and write the controller's rosbag2 recordings with ``rosbags`` (no rclpy).
+
+:func:`load_run` turns a recording (MCAP or sqlite3) into an
+:class:`~hybrid_force_controller.analysis.RunLog`; :class:`BagWriter` writes an MCAP bag
+with rosbag2 metadata version 8, the format ROS 2 Jazzy's rosbag2 writes and reads
+(``ros2 bag info`` / ``ros2 bag play``). Version 9 (Kilted and later) stores the QoS
+profiles as a YAML list, which Jazzy's reader rejects.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Sequence
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                QosReliability, QosTime)
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from .analysis import AnalysisError, RunLog, align
+
+__all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
+           'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
+           'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
+           'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED', 'TOPIC_X',
+           'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
+
+TOPIC_X = '/hybrid_force_controller/x'
+TOPIC_X_DESIRED = '/hybrid_force_controller/x_desired'
+TOPIC_WRENCH = '/hybrid_force_controller/wrench'
+TOPIC_WRENCH_DESIRED = '/hybrid_force_controller/wrench_desired'
+TOPIC_THETA_HAT = '/hybrid_force_controller/theta_hat'
+TOPIC_ERROR = '/hybrid_force_controller/error'
+TOPIC_JOINT_STATES = '/joint_states'
+TOPIC_FT_WRENCH = '/force_torque_sensor_broadcaster/wrench'
+TOPIC_EFFORT_COMMANDS = '/effort_controller/commands'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+TOPIC_CONTACT_WRENCH = '/sim/contact_wrench'
+
+_POINT = 'geometry_msgs/msg/PointStamped'
+_WRENCH = 'geometry_msgs/msg/WrenchStamped'
+_ARRAY = 'std_msgs/msg/Float64MultiArray'
+
+RECORD_TOPICS: list[tuple[str, str]] = [
+    (TOPIC_X, _POINT),
+    (TOPIC_X_DESIRED, _POINT),
+    (TOPIC_WRENCH, _WRENCH),
+    (TOPIC_WRENCH_DESIRED, _WRENCH),
+    (TOPIC_THETA_HAT, _ARRAY),
+    (TOPIC_ERROR, 'geometry_msgs/msg/Vector3Stamped'),
+    (TOPIC_JOINT_STATES, 'sensor_msgs/msg/JointState'),
+    (TOPIC_FT_WRENCH, _WRENCH),
+    (TOPIC_EFFORT_COMMANDS, _ARRAY),
+    (TOPIC_DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
+    (TOPIC_CONTACT_WRENCH, _WRENCH),
+]
+REQUIRED_TOPICS = (TOPIC_X, TOPIC_X_DESIRED, TOPIC_WRENCH, TOPIC_WRENCH_DESIRED,
+                   TOPIC_THETA_HAT)
+
+BAG_VERSION = 8
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_UNSPECIFIED = QosTime(0, 0)
+#: rmw_qos_profile_default: what an rclpy/rclcpp publisher with depth 10 offers.
+DEFAULT_QOS = Qos(QosHistory.KEEP_LAST, 10, QosReliability.RELIABLE, QosDurability.VOLATILE,
+                  _UNSPECIFIED, _UNSPECIFIED, QosLiveliness.SYSTEM_DEFAULT, _UNSPECIFIED,
+                  False)
+
+
+class BagError(ValueError):
+    """A bag cannot be read or written; the message names the bag, topic or problem."""
+
+
+class BagWriter:
+    """Write a rosbag2 MCAP bag (metadata version 8, Jazzy typestore).
+
+    The bag is created (and its directory must not exist) on construction; use it as a
+    context manager or call :meth:`close`, which writes ``metadata.yaml``. Thread-safe.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Bag directory to create.
+    topics : list of (str, str)
+        ``(topic, msgtype)`` pairs, e.g. :data:`RECORD_TOPICS`.
+    """
+
+    def __init__(self, path: str | Path, topics: Sequence[tuple[str, str]]) -> None:
+        self.path = Path(path)
+        names = [topic for topic, _ in topics]
+        if len(set(names)) != len(names):
+            raise BagError(f'duplicate topics in {names}')
+        unknown = [typ for _, typ in topics if typ not in TYPESTORE.types]
+        if unknown:
+            raise BagError(f'message types not in the Jazzy typestore: {unknown}')
+        self._lock = threading.Lock()
+        self._writer: Writer | None = None
+        try:
+            self._writer = Writer(self.path, version=BAG_VERSION,
+                                  storage_plugin=StoragePlugin.MCAP)
+            self._writer.open()
+            self._connections = {
+                topic: self._writer.add_connection(topic, typ, typestore=TYPESTORE,
+                                                   offered_qos_profiles=[DEFAULT_QOS])
+                for topic, typ in topics}
+        except Exception as exc:  # rosbags raises WriterError, OSError, ...
+            if self._writer is not None and self._writer.storage is not None:
+                self._writer.abort()
+            self._writer = None
+            raise BagError(f'cannot create bag {self.path}: {exc}') from exc
+        self._counts = dict.fromkeys(names, 0)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, by topic."""
+        with self._lock:
+            return dict(self._counts)
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` has run."""
+        return self._writer is None
+
+    def write(self, topic: str, stamp_ns: int, raw_cdr: bytes) -> None:
+        """Append one serialized (CDR, with encapsulation header) message.
+
+        Raises
+        ------
+        BagError
+            Closed writer, unknown topic or negative stamp.
+        """
+        if topic not in self._connections:
+            raise BagError(f'topic {topic} was not declared for bag {self.path}')
+        if stamp_ns < 0:
+            raise BagError(f'negative stamp {stamp_ns} ns on {topic}')
+        with self._lock:
+            if self._writer is None:
+                raise BagError(f'bag {self.path} is closed')
+            self._writer.write(self._connections[topic], int(stamp_ns), bytes(raw_cdr))
+            self._counts[topic] += 1
+
+    def write_msg(self, topic: str, stamp_ns: int, msg: Any) -> None:
+        """Serialize a ``rosbags`` message object with the Jazzy typestore and write it."""
+        conn = self._connections.get(topic)
+        if conn is None:
+            raise BagError(f'topic {topic} was not declared for bag {self.path}')
+        try:
+            raw = TYPESTORE.serialize_cdr(msg, conn.msgtype)
+        except Exception as exc:  # rosbags SerdeError, AttributeError on a wrong type
+            raise BagError(f'cannot serialize {type(msg).__name__} as {conn.msgtype} '
+                           f'on {topic}: {exc}') from exc
+        self.write(topic, stamp_ns, raw)
+
+    def close(self) -> None:
+        """Finish the MCAP file and write ``metadata.yaml``; later calls do nothing."""
+        with self._lock:
+            writer, self._writer = self._writer, None
+        if writer is not None:
+            writer.close()
+
+    def __enter__(self) -> BagWriter:
+        """Return the (already open) writer."""
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        """Close the bag, keeping what was written even when the block raised."""
+        self.close()
+
+
+@dataclass
+class _Series:
+    """Samples of one topic: header stamps (or log times), log times and values."""
+
+    stamp_ns: list[int] = field(default_factory=list)
+    log_ns: list[int] = field(default_factory=list)
+    values: list[Any] = field(default_factory=list)
+    has_header: bool = True
+
+
+def _stamp_ns(msg: Any, log_ns: int) -> int:
+    """Header stamp of ``msg`` in ns, or the bag log time for headerless types."""
+    header = getattr(msg, 'header', None)
+    if header is None:
+        return log_ns
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _value(topic: str, msg: Any) -> Any:
+    """The numbers :func:`load_run` needs from one message."""
+    if topic in (TOPIC_X, TOPIC_X_DESIRED):
+        return (msg.point.x, msg.point.y, msg.point.z)
+    if topic == TOPIC_THETA_HAT:
+        label = msg.layout.dim[0].label if len(msg.layout.dim) else ''
+        return np.array(msg.data, dtype=float), label
+    force = msg.wrench.force
+    return (force.x, force.y, force.z)
+
+
+def _read_series(bag_path: Path) -> dict[str, _Series]:
+    """Deserialize the topics :func:`load_run` uses.
+
+    Raises
+    ------
+    BagError
+        Unreadable or empty bag, or a required topic absent.
+    """
+    wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH)
+    try:
+        with AnyReader([bag_path], default_typestore=TYPESTORE) as reader:
+            if reader.message_count == 0 or not reader.connections:
+                raise BagError(f'bag {bag_path} is empty (no messages)')
+            for topic in REQUIRED_TOPICS:
+                if topic not in reader.topics:
+                    raise BagError(f'required topic {topic} missing from bag {bag_path}')
+            series = {t: _Series() for t in wanted if t in reader.topics}
+            conns = [c for c in reader.connections if c.topic in series]
+            for conn, log_ns, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                s = series[conn.topic]
+                s.has_header = hasattr(msg, 'header')
+                s.stamp_ns.append(_stamp_ns(msg, log_ns))
+                s.log_ns.append(log_ns)
+                s.values.append(_value(conn.topic, msg))
+    except BagError:
+        raise
+    except Exception as exc:  # rosbags raises many types on corrupt input
+        raise BagError(f'{bag_path} is not a readable rosbag2 bag: '
+                       f'{type(exc).__name__}: {exc}') from exc
+    for topic in REQUIRED_TOPICS:
+        if not series[topic].values:
+            raise BagError(f'no messages on required topic {topic} in bag {bag_path}')
+    return series
+
+
+def _sorted_by_stamp(series: _Series) -> _Series:
+    """``series`` ordered by header stamp (stable; log order breaks ties)."""
+    order = np.argsort(np.asarray(series.stamp_ns, dtype=np.int64), kind='stable')
+    return _Series([series.stamp_ns[i] for i in order], [series.log_ns[i] for i in order],
+                   [series.values[i] for i in order], series.has_header)
+
+
+def _on_x_time(series: _Series, x: _Series) -> np.ndarray:
+    """Zero-order hold ``series`` onto the samples of the position topic.
+
+    Stamped topics align header stamps; headerless ones (``Float64MultiArray``) align
+    bag log times against the position topic's log times, so a sim-time header clock and
+    a wall-clock recorder never get mixed.
+    """
+    t_src, t_query = ((series.stamp_ns, x.stamp_ns) if series.has_header
+                      else (series.log_ns, x.log_ns))
+    src_ns = np.asarray(t_src, dtype=np.int64)
+    query_ns = np.asarray(t_query, dtype=np.int64)
+    ref_ns = query_ns.min()  # float64 of epoch ns only resolves ~256 ns: subtract first
+    order = np.argsort(src_ns, kind='stable')
+    values = np.asarray(series.values, dtype=float)
+    return align((query_ns - ref_ns).astype(float), (src_ns[order] - ref_ns).astype(float),
+                 values[order])
+
+
+def _theta(series: _Series, x: _Series, bag_path: Path) -> tuple[np.ndarray, tuple[str, ...]]:
+    """``theta_hat`` on the position samples and its names from ``layout.dim[0].label``."""
+    sizes = {data.size for data, _ in series.values}
+    if len(sizes) != 1 or 0 in sizes:
+        raise BagError(f'{TOPIC_THETA_HAT} in {bag_path}: inconsistent or empty arrays '
+                       f'(sizes {sorted(sizes)})')
+    p = sizes.pop()
+    names = tuple(s.strip() for s in series.values[0][1].split(','))
+    if len(names) != p or not all(names):
+        names = tuple(f'theta_{i}' for i in range(p))
+    stacked = _Series(series.stamp_ns, series.log_ns,
+                      [data for data, _ in series.values], series.has_header)
+    return _on_x_time(stacked, x), names
+
+
+def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
+    """Unit normal from the largest desired force sample."""
+    norms = np.linalg.norm(f_d_W, axis=1)
+    k = int(np.argmax(norms))
+    if not np.isfinite(norms[k]) or norms[k] <= 1e-12:
+        raise BagError(f'{TOPIC_WRENCH_DESIRED} in {bag_path} is zero everywhere: '
+                       'cannot infer the surface normal')
+    return f_d_W[k] / norms[k]
+
+
+def load_run(bag_path: str | Path, contact_threshold_n: float = 0.05) -> RunLog:
+    """Load a controller recording as a :class:`RunLog` on the stamps of ``TOPIC_X``.
+
+    Parameters
+    ----------
+    bag_path : str or pathlib.Path
+        rosbag2 directory (MCAP or sqlite3), or a single ``.mcap``/``.db3`` file.
+    contact_threshold_n : float
+        ``in_contact = n^T f > contact_threshold_n``, with ``f`` the true contact force
+        (``/sim/contact_wrench``) when recorded, else the measured one.
+
+    Returns
+    -------
+    RunLog
+        ``t`` in seconds from the first position sample; ``n_W`` from the desired wrench.
+
+    Raises
+    ------
+    BagError
+        Missing path, unreadable/corrupt or empty bag, missing or empty required topic,
+        zero desired wrench, or signals that do not form a valid run log.
+    """
+    path = Path(bag_path)
+    if not path.exists():
+        raise BagError(f'bag not found: {path}')
+    series = _read_series(path)
+    x = _sorted_by_stamp(series[TOPIC_X])
+    f_d_W = _on_x_time(series[TOPIC_WRENCH_DESIRED], x)
+    n_W = _surface_normal(f_d_W, path)
+    f_W = _on_x_time(series[TOPIC_WRENCH], x)
+    true = series.get(TOPIC_CONTACT_WRENCH)
+    f_true_W = _on_x_time(true, x) if true is not None and true.values else None
+    theta_hat, names = _theta(series[TOPIC_THETA_HAT], x, path)
+    stamps = np.asarray(x.stamp_ns, dtype=np.int64)
+    f_contact_n = (f_W if f_true_W is None else f_true_W) @ n_W
+    try:
+        return RunLog(t=(stamps - stamps[0]) * 1e-9, x_W=np.asarray(x.values, dtype=float),
+                      x_d_W=_on_x_time(series[TOPIC_X_DESIRED], x), f_W=f_W, f_d_W=f_d_W,
+                      n_W=n_W, theta_hat=theta_hat, theta_names=names,
+                      in_contact=f_contact_n > contact_threshold_n, f_true_W=f_true_W)
+    except AnalysisError as exc:
+        raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

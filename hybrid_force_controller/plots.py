@@ -1,0 +1,118 @@
+"""Figures 3-5 of the paper from a :class:`~hybrid_force_controller.analysis.RunLog`.
+
+Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .analysis import RunLog, surface_axis, tangential_error
+
+__all__ = ['FIGURE_NAMES', 'write_figures']
+
+FIGURE_NAMES = ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png')
+_FIGSIZE = (7.0, 4.0)
+_DPI = 90
+_AXIS_NAMES = 'xyz'
+
+
+def _new_figure(rows: int = 1) -> tuple[Figure, np.ndarray]:
+    """A figure with ``rows`` stacked axes sharing the time axis."""
+    fig = Figure(figsize=_FIGSIZE, dpi=_DPI, layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(rows, 1, sharex=True))
+    return fig, axes
+
+
+def _contact_lost_spans(log: RunLog) -> list[tuple[float, float]]:
+    """``(t_begin, t_end)`` of every out-of-contact stretch after the first contact."""
+    touched = np.flatnonzero(log.in_contact)
+    if touched.size == 0:
+        return [(float(log.t[0]), float(log.t[-1]))]
+    lost = ~log.in_contact
+    lost[: touched[0]] = False
+    edges = np.diff(np.concatenate(([0], lost.astype(np.int8), [0])))
+    begins, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return [(float(log.t[b]), float(log.t[min(e, log.t.size - 1)]))
+            for b, e in zip(begins, ends)]
+
+
+def _plot_position(log: RunLog, path: Path) -> Path:
+    """Fig. 3: position along the surface (actual vs desired) and tangential error."""
+    axis = surface_axis(log.n_W)
+    fig, (ax_x, ax_e) = _new_figure(2)
+    ax_x.plot(log.t, log.x_W[:, axis], label='actual')
+    ax_x.plot(log.t, log.x_d_W[:, axis], '--', label='desired')
+    ax_x.set_ylabel(f'{_AXIS_NAMES[axis]} [m]')
+    ax_x.set_title('Trajectory tracking along the surface')
+    ax_x.legend(loc='best')
+    ax_e.plot(log.t, 1e3 * tangential_error(log), color='tab:red')
+    ax_e.set_ylabel('|e_tan| [mm]')
+    ax_e.ticklabel_format(axis='y', useOffset=False)
+    ax_e.set_ylim(bottom=0.0)
+    ax_e.set_xlabel('t [s]')
+    for ax in (ax_x, ax_e):
+        ax.grid(True, alpha=0.3)
+    fig.savefig(path)
+    return path
+
+
+def _plot_force(log: RunLog, path: Path) -> Path:
+    """Fig. 4: normal force actual vs desired, contact losses shaded."""
+    fig, (ax,) = _new_figure(1)
+    ax.plot(log.t, log.f_W @ log.n_W, label='measured', alpha=0.8)
+    if log.f_true_W is not None:
+        ax.plot(log.t, log.f_true_W @ log.n_W, label='true', color='black', lw=1.0)
+    ax.plot(log.t, log.f_d_W @ log.n_W, '--', label='desired', color='tab:orange')
+    for k, (t0, t1) in enumerate(_contact_lost_spans(log)):
+        ax.axvspan(t0, t1, color='tab:red', alpha=0.2,
+                   label='contact lost' if k == 0 else None)
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel('n^T f [N]')
+    ax.set_title('Force tracking along the surface normal')
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc='best')
+    fig.savefig(path)
+    return path
+
+
+def _plot_parameters(log: RunLog, path: Path) -> Path:
+    """Fig. 5: estimated parameters over time, true values dashed when known."""
+    fig, (ax,) = _new_figure(1)
+    for i, name in enumerate(log.theta_names):
+        (line,) = ax.plot(log.t, log.theta_hat[:, i], label=f'{name} estimate')
+        if log.theta_true is not None:
+            ax.axhline(log.theta_true[i], ls='--', color=line.get_color(),
+                       label=f'{name} true')
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel('theta_hat')
+    ax.set_title('Estimation of unknown dynamic parameters')
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc='best')
+    fig.savefig(path)
+    return path
+
+
+def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
+    """Write ``fig3_position.png``, ``fig4_force.png`` and ``fig5_parameters.png``.
+
+    Parameters
+    ----------
+    log : RunLog
+        The run to plot.
+    out_dir : str or pathlib.Path
+        Output directory, created when missing.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The three PNG files, in figure order.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    writers = (_plot_position, _plot_force, _plot_parameters)
+    return [write(log, out / name) for write, name in zip(writers, FIGURE_NAMES)]

@@ -1,0 +1,83 @@
+"""``report BAG --out DIR``: metrics and Figs. 3-5 of a recorded controller run.
+
+Writes ``metrics.json`` (non-finite numbers such as an unknown wall time become ``null``)
+and three PNGs to ``DIR``. Exit code 0 on success, 2 on an unreadable bag or invalid run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+from .analysis import AnalysisError, compute_metrics
+from .bag_io import BagError, load_run
+from .plots import write_figures
+
+__all__ = ['main']
+
+
+def _parser() -> argparse.ArgumentParser:
+    """Command-line interface."""
+    parser = argparse.ArgumentParser(
+        prog='report', description='Metrics and figures of a hybrid_force_controller bag.')
+    parser.add_argument('bag', type=Path, help='rosbag2 directory (MCAP or sqlite3)')
+    parser.add_argument('--out', type=Path, required=True, help='output directory')
+    parser.add_argument('--t-start', type=float, default=5.0,
+                        help='errors use samples with t >= T_START seconds (default 5)')
+    parser.add_argument('--contact-threshold', type=float, default=0.05,
+                        help='normal force [N] above which the tool is in contact')
+    parser.add_argument('--wall-time', type=float, default=float('nan'),
+                        help='wall-clock duration of the run [s], copied to metrics.json')
+    return parser
+
+
+def _json_safe(value: Any) -> Any:
+    """Replace NaN/inf floats (not valid JSON) by ``None``, recursively."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, list):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    return value
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the report.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments without the program name; ``None`` reads ``sys.argv``.
+
+    Returns
+    -------
+    int
+        0 on success, 2 when the bag cannot be used or the output cannot be written
+        (message on stderr).
+    """
+    args = _parser().parse_args(argv)
+    try:
+        log = load_run(args.bag, contact_threshold_n=args.contact_threshold)
+        metrics = compute_metrics(log, t_start=args.t_start, wall_time_s=args.wall_time)
+    except (BagError, AnalysisError) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        return 2
+    metrics_path = args.out / 'metrics.json'
+    try:
+        figures = write_figures(log, args.out)
+        metrics_path.write_text(json.dumps(_json_safe(metrics), indent=2) + '\n')
+    except OSError as exc:
+        print(f'error: cannot write to {args.out}: {exc}', file=sys.stderr)
+        return 2
+    print(f'metrics: {metrics_path}')
+    for path in figures:
+        print(f'figure:  {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

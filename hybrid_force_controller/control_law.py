@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -41,19 +42,26 @@ class ControlError(ValueError):
     """The control law met non-finite or inconsistent input it cannot act on."""
 
 
-@dataclass(frozen=True)
-class ControlOutput:
-    """One tick's result. Task quantities are in task coordinates (``model.task_axes``)."""
+class ControlOutput(NamedTuple):
+    """One tick's result: the clamped effort, e (task coordinates, ``model.task_axes``),
+    theta_hat after the update, the force integral h and whether a limit was active."""
 
     tau: np.ndarray
     e: np.ndarray
-    x: np.ndarray
-    x_d: np.ndarray
-    f: np.ndarray
-    f_d: np.ndarray
     theta_hat: np.ndarray
     h: float
     saturated: bool
+
+
+def small_inverse(A: np.ndarray) -> np.ndarray:
+    """Inverse of a square matrix; closed form for 2 x 2 (the hot path of planar arms)."""
+    if A.shape == (2, 2):
+        a, b, c, d = A.ravel().tolist()
+        det = a * d - b * c
+        if det == 0.0:
+            raise np.linalg.LinAlgError('singular Jacobian')
+        return np.array(((d / det, -b / det), (-c / det, a / det)))
+    return np.linalg.inv(A)
 
 
 def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e: np.ndarray,
@@ -65,7 +73,7 @@ def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e
     orthogonal projection in the Gamma metric, so the Lyapunov term
     ``theta_tilde^T Gamma theta_tilde`` does not grow (the true theta lies in the box).
     """
-    return np.clip(theta_hat - dt * (Gamma_inv @ (Y_x.T @ e)), theta_min, theta_max)
+    return np.minimum(np.maximum(theta_hat - dt * (Gamma_inv @ (Y_x.T @ e)), theta_min), theta_max)
 
 
 class HybridForceController:
@@ -129,7 +137,7 @@ class HybridForceController:
         kin = model.kinematics(q, qdot)
         f = f_W[model.task_index]
         r, rdot, e, df_n = self.reference_velocity(kin, ref, f)
-        J_inv = np.linalg.inv(kin.J_ee)
+        J_inv = small_inverse(kin.J_ee)
         qdot_r = J_inv @ r
         qddot_r = J_inv @ (rdot - kin.Jdot_ee @ qdot_r)
         Y_q = model.regressor_q(q, qdot, qdot_r, qddot_r)
@@ -142,15 +150,15 @@ class HybridForceController:
         self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, e_q, dt,
                                      p.theta_min, p.theta_max)
         self.h = min(max(self.h + df_n * dt, -p.integral_limit), p.integral_limit)
-        return ControlOutput(tau_out, e, kin.x, ref.x_d_W[model.task_index], f, p.f_d * p.n,
-                             self.theta_hat,
+        return ControlOutput(tau_out, e, self.theta_hat,
                              self.h, bool((tau_out != tau).any()))
 
     def _limit(self, tau: np.ndarray) -> np.ndarray:
         """Clamp to the per-joint effort limits and the optional per-tick rate limit."""
         p = self.params
         if p.max_effort_rate > 0.0 and self.tau_prev is not None:
-            tau = np.clip(tau, self.tau_prev - p.max_effort_rate, self.tau_prev + p.max_effort_rate)
-        tau = np.clip(tau, -p.effort_limits, p.effort_limits)
+            tau = np.minimum(np.maximum(tau, self.tau_prev - p.max_effort_rate),
+                             self.tau_prev + p.max_effort_rate)
+        tau = np.minimum(np.maximum(tau, -p.effort_limits), p.effort_limits)
         self.tau_prev = tau
         return tau

@@ -20,6 +20,7 @@ class LowPassFilter:
         self.cutoff_hz = float(cutoff_hz)
         self._y = np.zeros(size)
         self._ready = False
+        self._dt = self._a = -1.0
 
     @property
     def ready(self) -> bool:
@@ -35,18 +36,21 @@ class LowPassFilter:
         """Forget the state; the next finite sample restarts the filter."""
         self._ready = False
         self._y[:] = 0.0
+        self._dt = self._a = -1.0
 
     def update(self, u: np.ndarray, dt: float) -> bool:
         """Filter one sample taken ``dt`` seconds after the previous one.
 
         Returns False (and keeps the state) when ``u`` holds NaN/Inf.
         """
-        if not math.isfinite(float(np.sum(u))):
+        if not math.isfinite(u.sum()):
             return False
         if not self._ready or self.cutoff_hz <= 0.0:
             self._y[:] = u
             self._ready = True
             return True
-        a = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * max(dt, 0.0))
-        self._y += a * (u - self._y)
+        if dt != self._dt:
+            self._dt = dt
+            self._a = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * max(dt, 0.0))
+        self._y += self._a * (u - self._y)
         return True

@@ -49,7 +49,7 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('n', 'double_array', [0.0, -1.0, 0.0],
        'Contact normal in the base frame (into the surface); normalised on set.'),
     _S('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.', 0.0, 1e3),
-    _S('k_d', 'double', 60.0, 'K_D of eq. (5), N s/m.', 0.0, 1e5, positive=True),
+    _S('k_d', 'double', 200.0, 'K_D of eq. (5), N s/m.', 0.0, 1e5, positive=True),
     _S('k_max', 'double', 6000.0, 'Upper bound of the surface stiffness (eq. 29), N/m.',
        0.0, 1e8, positive=True),
     _S('k_s', 'double', 6000.0,

@@ -2,14 +2,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 __all__ = ['Reference', 'SineReference', 'blend_start']
 
 
-@dataclass(frozen=True)
-class Reference:
+class Reference(NamedTuple):
     """Desired position, velocity and acceleration in the base frame (each (3,))."""
 
     x_d_W: np.ndarray

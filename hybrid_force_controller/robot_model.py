@@ -12,6 +12,7 @@ arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 from importlib import resources
 from pathlib import Path
 
@@ -32,8 +33,7 @@ def default_urdf_path() -> Path:
     return Path(str(resources.files('hybrid_force_controller') / 'robots' / 'two_link_planar.urdf'))
 
 
-@dataclass(frozen=True)
-class TaskKinematics:
+class TaskKinematics(NamedTuple):
     """End-effector kinematics at one state.
 
     Attributes

@@ -7,11 +7,12 @@ path by whole control periods (a ROS loop between two processes adds 1-2).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from .analysis import RunLog
 from .control_law import HybridForceController
 from .environment import ElasticSurface
 from .filters import LowPassFilter
@@ -41,7 +42,7 @@ class ScenarioConfig:
     noise_sigma: float = 0.0
     seed: int = 0
     theta_hat0_scale: float = 1.0
-    substeps: int = 4
+    substeps: int = 2
     overrides: dict[str, Any] = field(default_factory=dict)
 
 
@@ -61,6 +62,13 @@ class ScenarioResult:
     n_W: np.ndarray
     theta_true: np.ndarray
     theta_names: tuple[str, ...]
+
+    def to_run_log(self) -> RunLog:
+        """The run as the analysis/plot input (:class:`~.analysis.RunLog`)."""
+        return RunLog(t=self.t, x_W=self.x_W, x_d_W=self.x_d_W, f_W=self.f_W,
+                      f_d_W=self.f_d_W, n_W=self.n_W, theta_hat=self.theta_hat,
+                      theta_names=self.theta_names, in_contact=self.in_contact,
+                      theta_true=self.theta_true, f_true_W=self.f_true_W)
 
 
 def make_controller_params(model: RobotModel, overrides: dict[str, Any]) -> ControllerParams:
@@ -128,21 +136,3 @@ class _Log:
                               np.tile(params.f_d * params.n, (steps, 1)), self.theta,
                               self.contact, np.array(self.tau), params.n.copy(),
                               model.theta_nominal.copy(), model.theta_names)
-
-
-def quick_metrics(res: ScenarioResult, t_start: float = 5.0) -> dict[str, float]:
-    """Tracking figures over t >= t_start (the report's metrics live in analysis.py)."""
-    sel = res.t >= t_start
-    n = res.n_W
-    P_t = np.eye(3) - np.outer(n, n)
-    ex = np.linalg.norm((res.x_W - res.x_d_W)[sel] @ P_t, axis=1)
-    ef = (res.f_true_W - res.f_d_W)[sel] @ n
-    first = int(np.argmax(res.in_contact)) if res.in_contact.any() else len(res.t)
-    dt = res.t[1] - res.t[0]
-    return {'rms_x': float(np.sqrt(np.mean(ex**2))), 'max_x': float(ex.max()),
-            'rms_f': float(np.sqrt(np.mean(ef**2))), 'max_f': float(np.abs(ef).max()),
-            'lost': float((~res.in_contact[first:]).sum() * dt),
-            'theta': res.theta_hat[-1].round(3).tolist()}
-
-
-_ = replace  # re-exported for callers building config variants

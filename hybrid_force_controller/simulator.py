@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -23,8 +24,7 @@ class SimulatorError(ValueError):
     """Bad simulator input (wrong effort length, non-finite effort, bad state)."""
 
 
-@dataclass(frozen=True)
-class Measurement:
+class Measurement(NamedTuple):
     """What the arm's sensors report after a step.
 
     ``f_W`` is the force the tool exerts on the surface in the base frame as the wrist
@@ -109,6 +109,7 @@ class ArmSimulator:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""
         f_true, self._tau_c, oMf = self._contact(self.q)
         f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
-        return Measurement(self.t, self.q.copy(), self.qdot.copy(), self.tau.copy(),
-                           oMf.translation.copy(), oMf.rotation.copy(), f_meas, f_true,
+        # q, qdot and tau are rebound (never mutated) by step(), so no copies are needed
+        return Measurement(self.t, self.q, self.qdot, self.tau, oMf.translation, oMf.rotation,
+                           f_meas, f_true,
                            bool(f_true.any()))

@@ -1,0 +1,73 @@
+"""``bench`` executable: speed figures as JSON (never asserted in tests).
+
+Offline figures (always):
+- ``controller_step_us_median`` / ``controller_step_us_p99``: one control-law plus
+  adaptation step (eqs. 5-11, 26) of the 2-DOF arm along the paper trajectory;
+- ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline.
+With ``--ros``: the controller and sim nodes in real time at 1 kHz (see ros_bench.py).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Sequence
+
+import numpy as np
+
+from .control_law import HybridForceController
+from .environment import ElasticSurface
+from .reference import SineReference, blend_start
+from .robot_model import RobotModel
+from .scenario import PAPER_Q0, ScenarioConfig, make_controller_params, run_scenario
+from .simulator import ArmSimulator
+
+
+def controller_step_times_us(steps: int = 20000) -> np.ndarray:
+    """Wall time of each ``HybridForceController.step`` in the closed paper loop, us."""
+    model = RobotModel.from_urdf()
+    params = make_controller_params(model, {})
+    ctrl = HybridForceController(model, params)
+    q0 = np.array(PAPER_Q0)
+    surface = ElasticSurface.create(1700.0, model.kinematics(q0, 0 * q0).p_W, params.n)
+    sim = ArmSimulator(model, surface, q0, substeps=2)
+    sine = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
+    meas, dt, out = sim.measure(), 1.0 / params.rate_hz, np.empty(steps)
+    for k in range(steps):
+        ref = blend_start(sine(k * dt), np.zeros(3), k * dt, 0.0)
+        t0 = time.perf_counter_ns()
+        tau = ctrl.step(meas.q, meas.qdot, meas.f_W, ref, dt).tau
+        out[k] = (time.perf_counter_ns() - t0) / 1e3
+        meas = sim.step(tau, dt)
+    return out
+
+
+def offline_figures() -> dict[str, float]:
+    """Controller step percentiles and the paper scenario's real-time factor."""
+    step_us = controller_step_times_us()
+    t0 = time.perf_counter()
+    run_scenario(ScenarioConfig())
+    wall = time.perf_counter() - t0
+    return {'controller_step_us_median': round(float(np.median(step_us)), 2),
+            'controller_step_us_p99': round(float(np.percentile(step_us, 99)), 2),
+            'paper_wall_time_s': round(wall, 3),
+            'sim_realtime_factor': round(20.0 / wall, 2)}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the benchmark figures as one JSON object."""
+    ap = argparse.ArgumentParser(prog='bench', description=__doc__.splitlines()[0])
+    ap.add_argument('--ros', action='store_true', help='also run the 1 kHz ROS loop')
+    ap.add_argument('--ros-duration', type=float, default=10.0, help='ROS loop run time, s')
+    args = ap.parse_args(argv)
+    figures = offline_figures()
+    if args.ros:
+        from .ros_bench import ros_loop_figures
+        figures.update(ros_loop_figures(args.ros_duration))
+    print(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -17,11 +17,17 @@ setup(
         ('share/' + PACKAGE + '/robots', glob(PACKAGE + '/robots/*.urdf')),
     ],
     install_requires=['setuptools', 'numpy'],
+    # On a machine without apt ROS, `pip install .[pypi]` brings ROS 2 Jazzy from PyPI.
+    extras_require={
+        'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
+                 'pin', 'rosbags', 'matplotlib'],
+        'test': ['pytest', 'colcon-core', 'colcon-ros'],
+    },
     zip_safe=True,
     maintainer='hybrid_force_controller developers',
     maintainer_email='dev@example.com',
     description='Adaptive hybrid force/motion controller for ROS 2 Jazzy',
-    license='Apache-2.0',
+    license='BSD-3-Clause',
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [

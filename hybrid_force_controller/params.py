@@ -42,10 +42,10 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('joints', 'string_array', ['joint1', 'joint2'],
        'Controlled joints, in the order of the effort command.', read_only=True),
     _S('lambda1', 'double', 40.0, 'lambda1 of eq. (11), 1/s.', 0.0, 1e4, positive=True),
-    _S('lambda2', 'double', 0.1, 'lambda2 of eq. (11) (force integral gain), 1/s^2.', 0.0, 1e4,
+    _S('lambda2', 'double', 0.1, 'lambda2 of eq. (11), force integral gain, m/(N s^2).', 0.0, 1e4,
        positive=True),
     _S('gamma', 'double_array', [70.0, 70.0],
-       'Gamma of eq. (26): p diagonal entries or a row-major p x p SPD matrix.'),
+       'Gamma of eq. (26) (acting on k_s e): p diagonal entries or a row-major p x p SPD matrix.'),
     _S('n', 'double_array', [0.0, -1.0, 0.0],
        'Contact normal in the base frame (into the surface); normalised on set.'),
     _S('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.', 0.0, 1e3),
@@ -57,15 +57,15 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        0.0, 1e8, positive=True),
     _S('theta_hat0', 'double_array', [],
        'Initial theta_hat (empty: the URDF masses).'),
-    _S('theta_min', 'double_array', [], 'Lower projection bounds of theta_hat (empty: -1e3).'),
-    _S('theta_max', 'double_array', [], 'Upper projection bounds of theta_hat (empty: 1e3).'),
+    _S('theta_min', 'double_array', [], 'Lower projection bounds of theta_hat (empty: 0).'),
+    _S('theta_max', 'double_array', [], 'Upper projection bounds of theta_hat (empty: 10 x the URDF values).'),
     _S('effort_limits', 'double_array', [],
        'Per-joint effort limits, N m (empty: from the URDF).'),
     _S('max_effort_rate', 'double', 0.0,
        'Largest effort change per tick, N m (0: no rate limit).', 0.0, 1e6),
     _S('force_filter_hz', 'double', 200.0, 'Cut-off of the force low-pass filter, Hz (0: off).',
        0.0, 1e5),
-    _S('integral_limit', 'double', 50.0,
+    _S('integral_limit', 'double', 2.0,
        'Anti-windup bound of |h| (eq. 20), N s.', 0.0, 1e6, positive=True),
     _S('ref_center', 'double_array', [1.0, 1.6, 0.0], 'Reference centre, base frame, m.'),
     _S('ref_amplitude', 'double_array', [0.1, 0.0, 0.0], 'Reference sine amplitude, m.'),
@@ -194,8 +194,8 @@ def build_controller_params(values: Mapping[str, Any], *, p: int, n_joints: int,
     theta0 = theta_nominal.copy() if theta0.size == 0 else theta0
     lo = _array('theta_min', v['theta_min'], (0, p))
     hi = _array('theta_max', v['theta_max'], (0, p))
-    lo = np.full(p, -1e3) if lo.size == 0 else lo
-    hi = np.full(p, 1e3) if hi.size == 0 else hi
+    lo = np.zeros(p) if lo.size == 0 else lo
+    hi = 10.0 * np.abs(theta_nominal) if hi.size == 0 else hi
     if np.any(lo >= hi) or np.any(theta0 < lo) or np.any(theta0 > hi):
         raise ParameterValidationError('need theta_min < theta_max and theta_hat0 inside them')
     limits = _array('effort_limits', v['effort_limits'], (0, n_joints))

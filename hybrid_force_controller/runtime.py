@@ -19,7 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .control_law import ControlError, HybridForceController
+from .control_law import ControlError, HybridForceController, in_contact
 from .environment import f_W_from_sensor_wrench
 from .filters import LowPassFilter
 from .params import ControllerParams, build_controller_params
@@ -53,8 +53,6 @@ class TickOutput:
 
 class ControllerRuntime:
     """Latest inputs + control law + safety logic for one arm."""
-
-    CONTACT_FRACTION = 0.1  # in contact when n^T f > 0.1 f_d (and > 0.05 N)
 
     def __init__(self, model: RobotModel, params: ControllerParams) -> None:
         self.model = model
@@ -225,5 +223,5 @@ class ControllerRuntime:
         tau = None if tau is None else tau[self._cmd_order]
         return TickOutput(tau, mode, x_W, x_d, f, p.f_d * p.n, e_W, self.ctrl.theta_hat.copy(),
                           self.model.theta_names,
-                          bool(p.n @ f > max(0.05, self.CONTACT_FRACTION * p.f_d)),
+                          in_contact(float(p.n @ f), p.f_d),
                           dict(self.counters), status)

@@ -1,0 +1,166 @@
+"""Parameter handling of the controller node through the parameter services (real DDS).
+
+The node runs in-process with its own context and domain; the tests talk to it with
+:class:`rclpy.parameter_client.AsyncParameterClient`, which is what ``ros2 param set`` uses.
+"""
+import math
+import os
+import threading
+from pathlib import Path
+
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ['ROS_DOMAIN_ID'] = '73'
+DOMAIN_ID = 73
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import rclpy  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+
+from hybrid_force_controller.controller_node import ControllerNode  # noqa: E402
+from sim_node.sim_node import SimNode  # noqa: E402
+
+TIMEOUT = 30.0
+PARAMS_FILE = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
+
+
+def _wait(future):
+    """Result of a future completed by the background executor (fails after TIMEOUT)."""
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    assert done.wait(TIMEOUT), 'no answer from the parameter service'
+    return future.result()
+
+
+class _Running:
+    """Nodes spun by a background executor in their own context."""
+
+    def __init__(self, make_nodes, args=None):
+        self.context = Context()
+        rclpy.init(args=args, context=self.context, domain_id=DOMAIN_ID)
+        self.nodes = make_nodes(self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        for node in self.nodes:
+            self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=TIMEOUT)
+        for node in self.nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(TIMEOUT)
+
+
+@pytest.fixture(scope='module')
+def controller():
+    running = _Running(lambda ctx: [ControllerNode(context=ctx),
+                                    Node('param_tester', context=ctx)])
+    node, tester = running.nodes
+    client = AsyncParameterClient(tester, 'hybrid_force_controller')
+    assert client.wait_for_services(timeout_sec=TIMEOUT)
+    yield node, client
+    running.close()
+
+
+def _get(client, name):
+    return parameter_value_to_python(_wait(client.get_parameters([name])).values[0])
+
+
+def _set(client, **values):
+    """Set each value on its own, like ``ros2 param set``; one result per value."""
+    params = [Parameter(k, value=v) for k, v in values.items()]
+    return _wait(client.set_parameters(params)).results
+
+
+def test_integer_is_accepted_as_double(controller):
+    node, client = controller
+    (result,) = _set(client, f_d=2)
+    assert result.successful, result.reason
+    value = _get(client, 'f_d')
+    assert isinstance(value, float) and value == 2.0
+    assert node.runtime.params.f_d == 2.0
+    assert _set(client, f_d=1.0)[0].successful
+
+
+def test_integer_normal_is_normalised(controller):
+    node, client = controller
+    (result,) = _set(client, n=[0, 2, 0])
+    assert result.successful, result.reason
+    assert list(_get(client, 'n')) == [0.0, 1.0, 0.0]
+    np.testing.assert_array_equal(node.runtime.params.n, [0.0, 1.0, 0.0])
+    assert _set(client, n=[0.0, -1.0, 0.0])[0].successful
+
+
+def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
+    node, client = controller
+    (result,) = _set(client, lambda1=10.0)
+    assert not result.successful
+    assert '100' in result.reason and '1200' in result.reason, result.reason
+    assert _get(client, 'lambda1') == 40.0
+    assert node.runtime.params.lambda1 == 40.0
+
+
+@pytest.mark.parametrize('name, value', [
+    ('gamma', [70.0, -1.0]),
+    ('n', [0.0, 1.0]),
+    ('n', [0.0, 0.0, 0.0]),
+    ('n', [0.0, math.nan, 0.0]),
+    ('k_d', -5.0),
+    ('rate_hz', 500.0),
+])
+def test_bad_value_is_rejected_and_nothing_changes(controller, name, value):
+    node, client = controller
+    before = _get(client, name)
+    params_before = node.runtime.params
+    (result,) = _set(client, **{name: value})
+    assert not result.successful
+    assert result.reason
+    assert list(np.atleast_1d(_get(client, name))) == list(np.atleast_1d(before))
+    assert node.runtime.params is params_before
+
+
+def test_atomic_multi_set_with_one_bad_value_changes_nothing(controller):
+    node, client = controller
+    params_before = node.runtime.params
+    bad = [Parameter('f_d', value=3.0), Parameter('lambda1', value=50.0),
+           Parameter('k_d', value=-1.0)]
+    result = _wait(client.set_parameters_atomically(bad)).result
+    assert not result.successful and result.reason
+    assert (_get(client, 'f_d'), _get(client, 'lambda1'), _get(client, 'k_d')) == (
+        1.0, 40.0, 200.0)
+    assert node.runtime.params is params_before
+
+
+def test_atomic_multi_set_is_validated_as_a_whole(controller):
+    node, client = controller
+    # lambda1 = 20 alone violates eq. (29) (400 <= 1200); with lambda2 = 0.01 it holds (400 > 120)
+    good = [Parameter('lambda1', value=20), Parameter('lambda2', value=0.01)]
+    result = _wait(client.set_parameters_atomically(good)).result
+    assert result.successful, result.reason
+    assert (node.runtime.params.lambda1, node.runtime.params.lambda2) == (20.0, 0.01)
+    restore = [Parameter('lambda2', value=0.1), Parameter('lambda1', value=40.0)]
+    assert _wait(client.set_parameters_atomically(restore)).result.successful
+
+
+def test_params_file_configures_both_nodes():
+    args = ['--ros-args', '--params-file', str(PARAMS_FILE), '-p', 'f_d:=3']
+    running = _Running(lambda ctx: [ControllerNode(context=ctx), SimNode(context=ctx)], args)
+    try:
+        controller, sim = running.nodes
+        p = controller.runtime.params
+        assert (p.lambda1, p.lambda2, p.k_d, p.k_max, p.k_s, p.f_d) == (
+            40.0, 0.1, 200.0, 6000.0, 6000.0, 3.0)
+        np.testing.assert_array_equal(np.diag(p.Gamma), [70.0, 70.0])
+        np.testing.assert_array_equal(p.n, [0.0, -1.0, 0.0])
+        assert sim.sim.surface.k == 1700.0
+        np.testing.assert_allclose(sim.sim.q, [0.657, 0.913])
+        assert sim.get_parameter('stiffness').value == 1700.0
+    finally:
+        running.close()

@@ -9,10 +9,12 @@ Subscribes ``/joint_states``, ``/force_torque_sensor_broadcaster/wrench`` and
 from __future__ import annotations
 
 import sys
+import time
 from collections import Counter
 from typing import Any, Callable
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterException
@@ -23,6 +25,8 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
 
+from .diagnostics import controller_status
+from .loop_stats import LoopStats
 from .params import CONTROLLER_SCHEMA
 from .robot_model import RobotModel
 from .ros_params import ParameterBinder, declare_schema
@@ -68,8 +72,12 @@ class ControllerNode(Node):
         self.pub_f_d = self.create_publisher(WrenchStamped, '~/wrench_desired', qos)
         self.pub_e = self.create_publisher(Vector3Stamped, '~/error', qos)
         self.pub_theta = self.create_publisher(Float64MultiArray, '~/theta_hat', qos)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos)
+        self.loop_stats = LoopStats()
+        self._last: TickOutput | None = None
         self.timer = self.create_timer(1.0 / self.runtime.params.rate_hz,
                                        self._guarded('tick', self._on_timer))
+        self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics))
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -103,16 +111,23 @@ class ControllerNode(Node):
         self.runtime.on_reference((msg.point.x, msg.point.y, msg.point.z), self._now())
 
     def _on_timer(self) -> None:
+        t_start = time.perf_counter()
         now = self.get_clock().now()
-        out = self.runtime.tick(now.nanoseconds * 1e-9)
+        out = self._last = self.runtime.tick(now.nanoseconds * 1e-9)
         if out.mode != self._mode:
-            self.get_logger().info(f'mode {out.mode}: {out.status}')
+            log = self.get_logger().error if out.mode == 'safe' else self.get_logger().info
+            log(f'mode {out.mode}: {out.status}')
             self._mode = out.mode
-        if out.tau is None:
-            return
-        messages = self._messages(out, now.to_msg())  # build all first: all or nothing
-        for publisher, msg in messages:
-            publisher.publish(msg)
+        if out.tau is not None:
+            messages = self._messages(out, now.to_msg())  # build all first: all or nothing
+            for publisher, msg in messages:
+                publisher.publish(msg)
+        self.loop_stats.record(t_start, time.perf_counter())
+
+    def _on_diagnostics(self) -> None:
+        self.pub_diag.publish(controller_status(self.get_clock().now().to_msg(), self.get_name(),
+                                                self._last, self.loop_stats.summary(),
+                                                self.errors))
 
     def _messages(self, out: TickOutput, stamp) -> list[tuple[Any, Any]]:
         header = Header(stamp=stamp, frame_id=self.base_frame)

@@ -1,0 +1,34 @@
+"""``/diagnostics`` status of the controller (diagnostic_msgs, the ROS convention)."""
+from __future__ import annotations
+
+from typing import Mapping
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from std_msgs.msg import Header
+
+from .runtime import TickOutput
+
+__all__ = ['controller_status']
+
+_LEVEL = {'running': DiagnosticStatus.OK, 'waiting': DiagnosticStatus.WARN,
+          'safe': DiagnosticStatus.ERROR}
+
+
+def controller_status(stamp, node_name: str, out: TickOutput | None,
+                      timing: Mapping[str, float], callback_errors: Mapping[str, int]
+                      ) -> DiagnosticArray:
+    """One DiagnosticStatus: mode, contact, dropped-message counts and loop timing."""
+    status = DiagnosticStatus(name=f'{node_name}: hybrid force/motion control',
+                              hardware_id=node_name)
+    if out is None:
+        status.level, status.message = DiagnosticStatus.WARN, 'no tick yet'
+        values: dict[str, object] = {}
+    else:
+        status.level, status.message = _LEVEL.get(out.mode, DiagnosticStatus.ERROR), out.status
+        values = {'mode': out.mode, 'in_contact': out.in_contact, **out.counters,
+                  'theta_hat': ', '.join(f'{v:.4g}' for v in out.theta_hat)}
+    values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
+                   for k, v in timing.items()})
+    values.update({f'callback_errors_{k}': v for k, v in callback_errors.items()})
+    status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+    return DiagnosticArray(header=Header(stamp=stamp), status=[status])

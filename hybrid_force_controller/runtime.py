@@ -58,7 +58,8 @@ class ControllerRuntime:
         self.model = model
         self.ctrl = HybridForceController(model, params)
         self.counters = {'joint_state_dropped': 0, 'wrench_dropped': 0, 'ticks': 0,
-                         'safe_mode_entries': 0, 'control_errors': 0, 'saturated_ticks': 0}
+                         'safe_mode_entries': 0, 'control_errors': 0, 'saturated_ticks': 0,
+                         'clock_restarts': 0}
         self._q = self._qdot = None
         self._t_state = self._t_wrench = self._t_tick = -np.inf
         self._F = np.zeros(3)
@@ -104,11 +105,14 @@ class ControllerRuntime:
                        qdot: Sequence[float] | None, t: float) -> None:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
         try:
+            if t < self._t_state:
+                raise InputError(f'joint state stamp {t:.6f} is older than the last one '
+                                 f'{self._t_state:.6f}')
             self._q, self._qdot = self._map_joints(names, q, qdot)
         except InputError:
             self.counters['joint_state_dropped'] += 1
             raise
-        self._t_state = max(self._t_state, t)
+        self._t_state = t
 
     def _map_joints(self, names, q, qdot) -> tuple[np.ndarray, np.ndarray]:
         if len(q) != len(names) or (qdot is not None and len(qdot) not in (0, len(names))):
@@ -153,6 +157,8 @@ class ControllerRuntime:
         """Compute the command for time ``t`` from the latest inputs."""
         self.counters['ticks'] += 1
         period = 1.0 / self.params.rate_hz
+        if t < self._t_tick - period:  # the clock jumped back (e.g. a restarted /clock)
+            self.restart_clock()
         dt = float(np.clip(t - self._t_tick, 0.1 * period, 10.0 * period))
         self._t_tick = max(self._t_tick, t)
         if self._q is None or self._R_frame is None:
@@ -170,6 +176,20 @@ class ControllerRuntime:
             return self._safe(f_W, f'control law failed: {exc}')
         self.counters['saturated_ticks'] += int(out.saturated)
         return self._output(out.tau, 'running', f_W, 'running', e=out.e)
+
+    def restart_clock(self) -> None:
+        """Forget the input stamps and restart the reference after a backward time jump.
+
+        The last samples are dropped (their stamps belong to the old clock), so the
+        controller waits for fresh inputs and then starts as after power-up, keeping
+        theta_hat.
+        """
+        self.counters['clock_restarts'] += 1
+        self._q = self._qdot = self._R_frame = None
+        self._t_state = self._t_wrench = self._t_tick = -np.inf
+        self._t0 = None
+        self.mode = 'waiting'
+        self._filter.reset()
 
     def _filtered_force(self, dt: float) -> np.ndarray:
         if self._new_wrench:

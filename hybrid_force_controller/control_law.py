@@ -96,6 +96,7 @@ class HybridForceController:
 
     def __init__(self, model: RobotModel, params: ControllerParams) -> None:
         self.model = model
+        self._project = model.parameter_set.project
         self.set_params(params)
         self.reset()
 
@@ -148,22 +149,42 @@ class HybridForceController:
         kin = model.kinematics(q, qdot)
         f = f_W[model.task_index]
         r, rdot, e, df_n = self.reference_velocity(kin, ref, f)
-        J_inv = small_inverse(kin.J_ee)
-        qdot_r = J_inv @ r
-        qddot_r = J_inv @ (rdot - kin.Jdot_ee @ qdot_r)
-        Y_q = model.regressor_q(q, qdot, qdot_r, qddot_r)
+        J_pinv, N = (self._pinv(q, kin.J_ee) if model.redundant
+                     else (small_inverse(kin.J_ee), None))
+        qdot_r = J_pinv @ r
+        qddot_r = J_pinv @ (rdot - kin.Jdot_ee @ qdot_r)
+        Y_q, tau_0 = model.regressor_affine(q, qdot, qdot_r, qddot_r)
+        s = qdot - qdot_r  # = J^-1 e for a square J
         tau = Y_q @ self.theta_hat + kin.J_ee.T @ (f - p.k_d * e)
+        if tau_0 is not None:
+            tau += tau_0
+        if N is not None:  # null-space posture damping
+            tau -= p.k_null * (N.T @ (N @ s))
         if not math.isfinite(tau.sum()):
             raise ControlError('control law produced a non-finite effort')
         tau_out = self._limit(tau)
-        # eq. (26): Y_x^T e = Y_q^T J^-T ... -> (J^-T Y_q)^T e = Y_q^T (J^-1 e)
-        e_q = J_inv @ (p.k_s * e)
-        self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, e_q, dt,
+        # eq. (26) in joint space: Y_x^T e = Y_q^T J^-1 e = Y_q^T s (square J)
+        self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, p.k_s * s, dt,
                                      p.theta_min, p.theta_max)
+        if self._project is not None:
+            self.theta_hat = self._project(self.theta_hat)
         if in_contact(df_n + p.f_d, p.f_d):  # anti-windup: h frozen while out of contact
             self.h = min(max(self.h + df_n * dt, -p.integral_limit), p.integral_limit)
         return ControlOutput(tau_out, e, self.theta_hat,
                              self.h, bool((tau_out != tau).any()))
+
+    def _pinv(self, q: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1`` and ``N``.
+
+        For redundant arms (joints > task dimension) eqs. (35)-(37) generalise with Jbar in
+        place of J^-1: ``qdot_r = Jbar r``, ``qddot_r = Jbar (rdot - Jdot qdot_r)`` (the
+        derivative of Jbar is neglected), and ``N = I - Jbar J`` projects onto motions that
+        leave the end effector still; ``-k_null N^T N s`` damps them. M is the URDF inertia.
+        """
+        M_inv = self.model.inertia_inverse(q)
+        JM = J @ M_inv
+        J_pinv = JM.T @ np.linalg.inv(JM @ J.T)
+        return J_pinv, np.eye(self.model.n) - J_pinv @ J
 
     def _limit(self, tau: np.ndarray) -> np.ndarray:
         """Clamp to the per-joint effort limits and the optional per-tick rate limit."""

@@ -50,6 +50,8 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        'Contact normal in the base frame (into the surface); normalised on set.'),
     _S('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.', 0.0, 1e3),
     _S('k_d', 'double', 200.0, 'K_D of eq. (5), N s/m.', 0.0, 1e5, positive=True),
+    _S('k_null', 'double', 2.0,
+       'Null-space posture damping of redundant arms, N m s/rad.', 0.0, 1e5),
     _S('k_max', 'double', 6000.0, 'Upper bound of the surface stiffness (eq. 29), N/m.',
        0.0, 1e8, positive=True),
     _S('k_s', 'double', 6000.0,
@@ -57,8 +59,8 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        0.0, 1e8, positive=True),
     _S('theta_hat0', 'double_array', [],
        'Initial theta_hat (empty: the URDF masses).'),
-    _S('theta_min', 'double_array', [], 'Lower projection bounds of theta_hat (empty: 0).'),
-    _S('theta_max', 'double_array', [], 'Upper projection bounds of theta_hat (empty: 10 x the URDF values).'),
+    _S('theta_min', 'double_array', [], 'Lower projection bounds of theta_hat (empty: the parameter set default).'),
+    _S('theta_max', 'double_array', [], 'Upper projection bounds of theta_hat (empty: the parameter set default).'),
     _S('effort_limits', 'double_array', [],
        'Per-joint effort limits, N m (empty: from the URDF).'),
     _S('max_effort_rate', 'double', 0.0,
@@ -90,6 +92,7 @@ class ControllerParams:
     n: np.ndarray
     f_d: float
     k_d: float
+    k_null: float
     k_max: float
     k_s: float
     theta_hat0: np.ndarray
@@ -175,10 +178,14 @@ def _normal(value: Any, task_axes: Sequence[int]) -> np.ndarray:
 
 def build_controller_params(values: Mapping[str, Any], *, p: int, n_joints: int,
                             task_axes: Sequence[int], theta_nominal: np.ndarray,
-                            urdf_effort_limits: np.ndarray) -> ControllerParams:
+                            urdf_effort_limits: np.ndarray,
+                            theta_bounds: tuple[np.ndarray, np.ndarray] | None = None
+                            ) -> ControllerParams:
     """Validate a full set of values against the schema and the model; freeze them.
 
-    Raises :class:`ParameterValidationError` with the reason on the first problem.
+    ``theta_bounds`` are the default projection bounds (the parameter set's); without
+    them ``[0, 10 theta_nominal]``. Raises :class:`ParameterValidationError` with the
+    reason on the first problem.
     """
     unknown = set(values) - set(_SPECS)
     if unknown:
@@ -194,8 +201,9 @@ def build_controller_params(values: Mapping[str, Any], *, p: int, n_joints: int,
     theta0 = theta_nominal.copy() if theta0.size == 0 else theta0
     lo = _array('theta_min', v['theta_min'], (0, p))
     hi = _array('theta_max', v['theta_max'], (0, p))
-    lo = np.zeros(p) if lo.size == 0 else lo
-    hi = 10.0 * np.abs(theta_nominal) if hi.size == 0 else hi
+    lo_0, hi_0 = theta_bounds or (np.zeros(p), 10.0 * np.abs(theta_nominal))
+    lo = np.asarray(lo_0, dtype=float) if lo.size == 0 else lo
+    hi = np.asarray(hi_0, dtype=float) if hi.size == 0 else hi
     if np.any(lo >= hi) or np.any(theta0 < lo) or np.any(theta0 > hi):
         raise ParameterValidationError('need theta_min < theta_max and theta_hat0 inside them')
     limits = _array('effort_limits', v['effort_limits'], (0, n_joints))
@@ -205,7 +213,7 @@ def build_controller_params(values: Mapping[str, Any], *, p: int, n_joints: int,
     return ControllerParams(
         rate_hz=s['rate_hz'], joints=joints, lambda1=s['lambda1'], lambda2=s['lambda2'],
         Gamma=_gamma(v['gamma'], p), n=_normal(v['n'], task_axes), f_d=s['f_d'],
-        k_d=s['k_d'], k_max=s['k_max'], k_s=s['k_s'], theta_hat0=theta0, theta_min=lo,
+        k_d=s['k_d'], k_null=s['k_null'], k_max=s['k_max'], k_s=s['k_s'], theta_hat0=theta0, theta_min=lo,
         theta_max=hi, effort_limits=limits, max_effort_rate=s['max_effort_rate'],
         force_filter_hz=s['force_filter_hz'], integral_limit=s['integral_limit'],
         ref_center=_array('ref_center', v['ref_center'], (3,)),

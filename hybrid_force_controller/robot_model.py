@@ -15,9 +15,12 @@ from dataclasses import dataclass
 from typing import NamedTuple
 from importlib import resources
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
+
+from .parameter_sets import make_parameter_set
 
 __all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
 
@@ -55,16 +58,16 @@ class TaskKinematics(NamedTuple):
 
 
 class RobotModel:
-    """A serial arm from a URDF with the paper's ``link_masses`` parameter set.
+    """A serial arm from a URDF, with an adaptive parameter set (parameter_sets.py).
 
-    theta holds one mass per link that carries one; each link keeps its nominal geometry
-    (centre of mass and inertia per unit mass), so its 10 inertial parameters are
-    ``pi_i = theta_i * pi_i_nominal / m_i_nominal``: ``pi = P theta``. For the paper's arm
-    ``theta = [m1, m2]``.
+    The default set is the paper's ``link_masses``: one mass per link, each link keeping
+    its nominal geometry; for the paper's arm ``theta = [m1, m2]``. Task coordinates are
+    expressed in ``base_link`` (default: the URDF root), which must be fixed to the root.
     """
 
-    def __init__(self, model: pin.Model, end_effector_link: str, gravity_W: np.ndarray) -> None:
-        if end_effector_link not in [f.name for f in model.frames]:
+    def __init__(self, model: pin.Model, end_effector_link: str, gravity_W: np.ndarray, *,
+                 parameter_set: str = 'link_masses', base_link: str | None = None) -> None:
+        if not model.existFrame(end_effector_link):
             raise ModelError(f"end-effector link '{end_effector_link}' is not in the model")
         if model.nq != model.nv:
             raise ModelError('only revolute and prismatic joints are supported (nq != nv)')
@@ -73,55 +76,62 @@ class RobotModel:
         self.data = model.createData()
         self.frame_id = model.getFrameId(end_effector_link)
         self.end_effector_link = end_effector_link
-        self.base_link = model.frames[1].name if len(model.frames) > 1 else 'universe'
+        self.root_link = model.frames[1].name if len(model.frames) > 1 else 'universe'
+        self.base_link = base_link or self.root_link
+        self._R_BW = self._base_rotation(self.base_link)
         self.joint_names = tuple(model.names[i] for i in range(1, model.njoints))
         self.n = model.nv
-        self._P, self.theta_names, self.theta_nominal = self._link_mass_map(model)
+        try:
+            ps = make_parameter_set(model, parameter_set, model.frames[self.frame_id].parentJoint)
+        except ValueError as exc:
+            raise ModelError(str(exc)) from None
+        self.parameter_set = ps
+        self._P, self._pi_0 = ps.P, ps.pi_0
+        self._has_pi_0 = bool(np.any(ps.pi_0))
+        self.theta_names, self.theta_nominal = ps.theta_names, ps.theta_nominal
         self.task_axes = self._detect_task_axes()
         self.m = len(self.task_axes)
         a0, a1 = self.task_axes[0], self.task_axes[-1]
         contiguous = self.task_axes == tuple(range(a0, a1 + 1))
         # a slice gives views (no copy) on the hot path; fancy indexing otherwise
         self.task_index = slice(a0, a1 + 1) if contiguous else list(self.task_axes)
+        self.redundant = self.n > self.m
         self.position_limits = (model.lowerPositionLimit.copy(), model.upperPositionLimit.copy())
         self.effort_limits = model.effortLimit.copy()
         self._zero = np.zeros(self.n)
 
     @classmethod
     def from_urdf(cls, urdf: str | Path | None = None, *, end_effector_link: str = 'tool0',
-                  gravity_W=(0.0, -9.81, 0.0)) -> 'RobotModel':
-        """Load a URDF file path or URDF XML string (``None``: the paper's 2-link arm)."""
+                  base_link: str | None = None, joints: Sequence[str] | None = None,
+                  gravity_W: Sequence[float] | None = None,
+                  parameter_set: str = 'link_masses') -> 'RobotModel':
+        """Load a URDF file path or URDF XML string (``None``: the paper's 2-link arm).
+
+        ``joints`` selects the controlled joints (the others are locked at their neutral
+        position clipped into their limits). ``gravity_W`` is in the URDF root frame; the
+        default, 9.81 m/s^2 along -y, is the paper's (a z-up robot needs (0, 0, -9.81)).
+        """
         src = default_urdf_path() if urdf is None else urdf
-        try:
-            if isinstance(src, Path) or not str(src).lstrip().startswith('<'):
-                if not Path(src).is_file():
-                    raise ModelError(f'URDF file not found: {src}')
-                model = pin.buildModelFromUrdf(str(src))
-            else:
-                model = pin.buildModelFromXML(str(src))
-        except ModelError:
-            raise
-        except Exception as exc:  # pinocchio raises plain RuntimeError/ValueError
-            raise ModelError(f'cannot parse URDF: {exc}') from exc
-        return cls(model, end_effector_link, np.asarray(gravity_W, dtype=float))
+        model = _parse(src)
+        if joints:
+            model = _reduce(model, joints)
+        gravity_W = (0.0, -9.81, 0.0) if gravity_W is None else gravity_W
+        return cls(model, end_effector_link, np.asarray(gravity_W, dtype=float),
+                   parameter_set=parameter_set, base_link=base_link)
 
     # ------------------------------------------------------------------ set-up helpers
-    @staticmethod
-    def _link_mass_map(model: pin.Model) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:
-        """Matrix P with pi = P theta for the ``link_masses`` set (one column per massive link)."""
-        cols, names, masses = [], [], []
-        for j in range(1, model.njoints):
-            inertia = model.inertias[j]
-            if inertia.mass <= 0.0:
-                continue
-            col = np.zeros(10 * (model.njoints - 1))
-            col[10 * (j - 1):10 * j] = inertia.toDynamicParameters() / inertia.mass
-            cols.append(col)
-            names.append(f'm_{model.names[j]}')
-            masses.append(inertia.mass)
-        if not cols:
-            raise ModelError('no link carries mass: nothing to adapt')
-        return np.column_stack(cols), tuple(names), np.array(masses)
+    def _base_rotation(self, base_link: str) -> np.ndarray | None:
+        """Rotation base <- root of a base frame fixed to the root (None: it is the root)."""
+        if not self.model.existFrame(base_link):
+            raise ModelError(f"base link '{base_link}' is not in the model")
+        frame = self.model.frames[self.model.getFrameId(base_link)]
+        if frame.parentJoint != 0:
+            raise ModelError(f"base link '{base_link}' moves with joint "
+                             f"'{self.model.names[frame.parentJoint]}'; it must be fixed")
+        self._p_WB = frame.placement.translation.copy()
+        R = frame.placement.rotation
+        identity = np.allclose(R, np.eye(3)) and np.allclose(self._p_WB, 0.0)
+        return None if identity else R.T.copy()
 
     def _detect_task_axes(self) -> tuple[int, ...]:
         """Base axes along which the end effector can move (planar arms give 2 axes)."""
@@ -130,15 +140,15 @@ class RobotModel:
         span = np.zeros(3)
         for _ in range(8):
             q = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
-            J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id, _LWA)[:3]
+            J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id,
+                                         _LWA).reshape(6, -1)[:3]
+            J = J if self._R_BW is None else self._R_BW @ J
             span += np.abs(J).sum(axis=1)
         axes = tuple(int(i) for i in np.flatnonzero(span > 1e-9 * max(span.max(), 1.0)))
-        if len(axes) > self.n:
-            raise ModelError(f'{self.n} joints cannot control a {len(axes)}-D task space '
-                             f'(redundant or under-actuated chains are not supported yet)')
-        if len(axes) < self.n:
-            raise ModelError(f'{self.n} joints for a {len(axes)}-D task space: redundant '
-                             'arms are not supported yet')
+        if not axes or len(axes) > self.n:
+            raise ModelError(f'{self.n} joint(s) cannot control the {len(axes)}-D translational '
+                             f'task space of {self.end_effector_link}: fewer joints than the '
+                             'task needs')
         return axes
 
     # ------------------------------------------------------------------ per-tick terms
@@ -151,10 +161,14 @@ class RobotModel:
         model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
         pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
         oMf = pin.updateFramePlacement(model, data, fid)
-        J = pin.getFrameJacobian(model, data, fid, _LWA)[ax]
-        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[ax]
-        p_W = oMf.translation
-        return TaskKinematics(p_W, oMf.rotation, p_W[ax], J @ qdot, J, Jdot)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
+        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[:3]
+        p_W, R = oMf.translation, oMf.rotation
+        if self._R_BW is not None:  # express everything in base_link
+            R_BW = self._R_BW
+            p_W, R, J, Jdot = R_BW @ (p_W - self._p_WB), R_BW @ R, R_BW @ J, R_BW @ Jdot
+        J, Jdot = J[ax], Jdot[ax]
+        return TaskKinematics(p_W, R, p_W[ax], J @ qdot, J, Jdot)
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:
@@ -166,11 +180,24 @@ class RobotModel:
         ``Y = R(q, v+w, 4a)/4 - R(q, v-w, 0)/4 + R(q, 0, 0)`` with R pinocchio's
         ``computeJointTorqueRegressor``, mapped to theta by P.
         """
+        return self.regressor_affine(q, qdot, qdot_r, qddot_r)[0]
+
+    def regressor_affine(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
+                         qddot_r: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(Y_q, tau_0)`` with ``Y_q theta + tau_0 = M qddot_r + C qdot_r + g``.
+
+        ``tau_0 = R pi_0`` is the torque of the known part of the model (None when the set
+        has no known part, e.g. ``link_masses``).
+        """
         model, data, z = self.model, self.data, self._zero
         R_plus = pin.computeJointTorqueRegressor(model, data, q, qdot + qdot_r, 4.0 * qddot_r)
         R_minus = pin.computeJointTorqueRegressor(model, data, q, qdot - qdot_r, z)
-        R_g = pin.computeJointTorqueRegressor(model, data, q, z, z)
-        return (0.25 * (R_plus - R_minus) + R_g) @ self._P
+        R = 0.25 * (R_plus - R_minus) + pin.computeJointTorqueRegressor(model, data, q, z, z)
+        return R @ self._P, (R @ self._pi_0 if self._has_pi_0 else None)
+
+    def inertia_inverse(self, q: np.ndarray) -> np.ndarray:
+        """M(q)^-1 of the URDF (nominal) model, by pinocchio's ``computeMinverse``."""
+        return pin.computeMinverse(self.model, self.data, q)
 
     def joint_terms(self, q: np.ndarray, qdot: np.ndarray,
                     theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -181,10 +208,13 @@ class RobotModel:
         """
         theta = self.theta_nominal if theta is None else np.asarray(theta, dtype=float)
         z, eye = self._zero, np.eye(self.n)
-        g = self.regressor_q(q, z, z, z) @ theta
-        M = np.column_stack([self.regressor_q(q, z, z, eye[k]) @ theta - g for k in range(self.n)])
-        C = np.column_stack([self.regressor_q(q, qdot, eye[k], z) @ theta - g
-                             for k in range(self.n)])
+
+        def tau(v, w, a):
+            Y, tau_0 = self.regressor_affine(q, v, w, a)
+            return Y @ theta + (0.0 if tau_0 is None else tau_0)
+        g = tau(z, z, z)
+        M = np.column_stack([tau(z, z, eye[k]) - g for k in range(self.n)])
+        C = np.column_stack([tau(qdot, eye[k], z) - g for k in range(self.n)])
         return M, C, g
 
     def task_terms(self, q: np.ndarray, qdot: np.ndarray,
@@ -194,6 +224,7 @@ class RobotModel:
         ``M_x = J^-T M J^-1``, ``C_x = J^-T (C - M J^-1 Jdot) J^-1``, ``g_x = J^-T g``.
         (The paper prints J^T in (35) and ends (36) in J; see docs/errata.md.)
         """
+        self._require_square()
         kin = self.kinematics(q, qdot)
         M, C, g = self.joint_terms(q, qdot, theta)
         J_inv = np.linalg.inv(kin.J_ee)
@@ -208,31 +239,68 @@ class RobotModel:
         With qdot_r = J^-1 r and qddot_r = J^-1 (rdot - Jdot qdot_r):
         ``Y_x = J^-T Y_q(q, qdot, qdot_r, qddot_r)``.
         """
+        self._require_square()
         kin = self.kinematics(q, qdot)
         qdot_r = np.linalg.solve(kin.J_ee, r)
         qddot_r = np.linalg.solve(kin.J_ee, rdot - kin.Jdot_ee @ qdot_r)
         return np.linalg.solve(kin.J_ee.T, self.regressor_q(q, qdot, qdot_r, qddot_r))
 
+    def _require_square(self) -> None:
+        if self.redundant:
+            raise ModelError('task-space terms (35)-(37) need a square Jacobian; '
+                             f'this arm has {self.n} joints for a {self.m}-D task')
+
     def frame_rotation(self, q: np.ndarray, frame: str) -> np.ndarray:
-        """Rotation of a model frame in the base frame at ``q``; ModelError if unknown."""
+        """Rotation of a model frame in ``base_link`` at ``q``; ModelError if unknown."""
         if not self.model.existFrame(frame):
             raise ModelError(f"unknown frame '{frame}'")
         pin.forwardKinematics(self.model, self.data, q)
-        return pin.updateFramePlacement(self.model, self.data, self.model.getFrameId(frame)).rotation.copy()
+        R = pin.updateFramePlacement(self.model, self.data, self.model.getFrameId(frame)).rotation
+        return R.copy() if self._R_BW is None else self._R_BW @ R
 
     def forward_dynamics(self, q: np.ndarray, qdot: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Joint accelerations from pinocchio's ABA (uses the model's true inertias)."""
         return pin.aba(self.model, self.data, q, qdot, tau)
 
     def with_theta(self, theta: np.ndarray) -> 'RobotModel':
-        """A copy whose link inertias are scaled to the masses ``theta`` (a plant variant)."""
+        """A copy whose inertias are ``pi = P theta + pi_0`` (a plant with other parameters)."""
         theta = np.asarray(theta, dtype=float)
-        if theta.shape != self.theta_nominal.shape or np.any(theta <= 0):
+        if theta.shape != self.theta_nominal.shape or not np.all(np.isfinite(theta)):
+            raise ModelError(f'theta must be {len(self.theta_nominal)} finite values')
+        if self.parameter_set.name == 'link_masses' and np.any(theta <= 0):
             raise ModelError(f'theta must be {len(self.theta_nominal)} positive masses')
         model = self.model.copy()
-        pi = self._P @ theta
+        pi = self._P @ theta + self._pi_0
         for j in range(1, model.njoints):
             seg = pi[10 * (j - 1):10 * j]
             if seg[0] > 0:
                 model.inertias[j] = pin.Inertia.FromDynamicParameters(seg)
-        return RobotModel(model, self.end_effector_link, model.gravity.linear.copy())
+        return RobotModel(model, self.end_effector_link, model.gravity.linear.copy(),
+                          parameter_set=self.parameter_set.name, base_link=self.base_link)
+
+
+def _parse(src: str | Path) -> pin.Model:
+    """pinocchio model of a URDF path or XML string; ModelError on failure."""
+    try:
+        if isinstance(src, Path) or not str(src).lstrip().startswith('<'):
+            if not Path(src).is_file():
+                raise ModelError(f'URDF file not found: {src}')
+            return pin.buildModelFromUrdf(str(src))
+        return pin.buildModelFromXML(str(src))
+    except ModelError:
+        raise
+    except Exception as exc:  # pinocchio raises plain RuntimeError/ValueError
+        raise ModelError(f'cannot parse URDF: {exc}') from exc
+
+
+def _reduce(model: pin.Model, joints: Sequence[str]) -> pin.Model:
+    """Keep ``joints`` (in URDF order), lock every other joint at a neutral position."""
+    names = list(model.names)[1:]
+    unknown = [j for j in joints if j not in names]
+    if unknown:
+        raise ModelError(f'joints not in the URDF: {unknown}')
+    lock = [model.getJointId(n) for n in names if n not in joints]
+    if not lock:
+        return model
+    q_ref = np.clip(pin.neutral(model), model.lowerPositionLimit, model.upperPositionLimit)
+    return pin.buildReducedModel(model, lock, q_ref)

@@ -26,7 +26,17 @@ from .params import ControllerParams, build_controller_params
 from .reference import Reference, SineReference, blend_start
 from .robot_model import ModelError, RobotModel
 
-__all__ = ['ControllerRuntime', 'InputError', 'TickOutput']
+__all__ = ['ControllerRuntime', 'InputError', 'TickOutput', 'params_for_model']
+
+
+def params_for_model(model: RobotModel, values: dict[str, Any]) -> ControllerParams:
+    """Validate parameter values against the schema and ``model`` (joints default to the
+    model's joints; theta bounds default to the parameter set's)."""
+    ps = model.parameter_set
+    return build_controller_params(
+        {'joints': list(model.joint_names), **values}, p=len(model.theta_nominal),
+        n_joints=model.n, task_axes=model.task_axes, theta_nominal=model.theta_nominal,
+        urdf_effort_limits=model.effort_limits, theta_bounds=(ps.theta_min, ps.theta_max))
 
 
 class InputError(ValueError):
@@ -80,10 +90,7 @@ class ControllerRuntime:
 
     def validate(self, values: dict[str, Any]) -> ControllerParams:
         """Full set of parameter values -> ControllerParams (ParameterValidationError)."""
-        m = self.model
-        return build_controller_params(values, p=len(m.theta_nominal), n_joints=m.n,
-                                       task_axes=m.task_axes, theta_nominal=m.theta_nominal,
-                                       urdf_effort_limits=m.effort_limits)
+        return params_for_model(self.model, values)
 
     def set_params(self, params: ControllerParams) -> None:
         """Install a validated set atomically; it takes effect on the next tick."""

@@ -16,9 +16,10 @@ from .analysis import RunLog
 from .control_law import HybridForceController
 from .environment import ElasticSurface
 from .filters import LowPassFilter
-from .params import ControllerParams, build_controller_params
+from .params import ControllerParams
 from .reference import SineReference, blend_start
 from .robot_model import RobotModel
+from .runtime import params_for_model
 from .simulator import ArmSimulator
 
 __all__ = ['ScenarioConfig', 'ScenarioResult', 'make_controller_params', 'run_scenario']
@@ -73,10 +74,7 @@ class ScenarioResult:
 
 def make_controller_params(model: RobotModel, overrides: dict[str, Any]) -> ControllerParams:
     """Validated parameters for ``model`` with ``overrides`` applied to the defaults."""
-    return build_controller_params(
-        {'joints': list(model.joint_names), **overrides}, p=len(model.theta_nominal),
-        n_joints=model.n, task_axes=model.task_axes, theta_nominal=model.theta_nominal,
-        urdf_effort_limits=model.effort_limits)
+    return params_for_model(model, overrides)
 
 
 def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> ScenarioResult:

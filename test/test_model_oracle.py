@@ -6,7 +6,8 @@
   theta, RNEA / CRBA / Coriolis-matrix consistency) on the 2-link arm and on a 3-DOF
   spatial arm with a full rotational inertia tensor (``test/three_link_spatial.urdf``).
 * The printed forms of (32), (33), (35), (36) disagree with the model (errata are real).
-* Construction errors: redundant arm, unknown end-effector link, missing file.
+* Construction: a redundant planar arm, too few joints, base link, unknown end-effector link,
+  missing file.
 
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
@@ -356,10 +357,27 @@ def test_eq36_as_printed_disagrees(arm2):
 
 
 # ---------------------------------------------------------------- construction errors
-def test_planar_three_link_is_rejected_as_redundant():
-    """3 joints for a 2-D planar task space: ModelError mentioning 'redundant'."""
-    with pytest.raises(ModelError, match='redundant'):
-        RobotModel.from_urdf(PLANAR_3LINK_URDF)
+def test_planar_three_link_is_a_redundant_planar_arm():
+    """3 joints for a 2-D planar task space: accepted as redundant; (35)-(37) refuse it."""
+    arm3 = RobotModel.from_urdf(PLANAR_3LINK_URDF)
+    assert arm3.task_axes == (0, 1) and arm3.n == 3 and arm3.redundant
+    with pytest.raises(ModelError, match='square Jacobian'):
+        arm3.task_terms(np.array([0.3, 0.4, 0.5]), np.zeros(3))
+
+
+def test_fewer_joints_than_the_task_needs_is_rejected():
+    """One revolute joint moves the tip in a plane (2-D task): ModelError 'fewer joints'."""
+    xml = default_urdf_path().read_text()
+    with pytest.raises(ModelError, match='fewer joints'):
+        RobotModel.from_urdf(xml, joints=['joint1'])
+
+
+def test_base_link_must_be_fixed_and_known():
+    xml = default_urdf_path().read_text()
+    with pytest.raises(ModelError, match='link1'):
+        RobotModel.from_urdf(xml, base_link='link1', gravity_W=(0, -9.81, 0))
+    with pytest.raises(ModelError, match='nowhere'):
+        RobotModel.from_urdf(xml, base_link='nowhere')
 
 
 def test_unknown_end_effector_link_is_rejected():

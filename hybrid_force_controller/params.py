@@ -44,8 +44,8 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('lambda1', 'double', 40.0, 'lambda1 of eq. (11), 1/s.', 0.0, 1e4, positive=True),
     _S('lambda2', 'double', 0.1, 'lambda2 of eq. (11), force integral gain, m/(N s^2).', 0.0, 1e4,
        positive=True),
-    _S('gamma', 'double_array', [70.0, 70.0],
-       'Gamma of eq. (26) (acting on k_s e): p diagonal entries or a row-major p x p SPD matrix.'),
+    _S('gamma', 'double_array', [70.0],
+       'Gamma of eq. (26) (acting on k_s e): one value (times I), p diagonal entries or a row-major p x p SPD matrix.'),
     _S('n', 'double_array', [0.0, -1.0, 0.0],
        'Contact normal in the base frame (into the surface); normalised on set.'),
     _S('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.', 0.0, 1e3),
@@ -153,8 +153,8 @@ def _array(name: str, value: Any, sizes: Sequence[int] | None = None) -> np.ndar
 
 
 def _gamma(value: Any, p: int) -> np.ndarray:
-    g = _array('gamma', value, (p, p * p))
-    G = np.diag(g) if g.size == p else g.reshape(p, p)
+    g = _array('gamma', value, (1, p, p * p))
+    G = np.diag(np.broadcast_to(g, p)) if g.size in (1, p) else g.reshape(p, p)
     if not np.allclose(G, G.T, rtol=0.0, atol=1e-12 * max(1.0, np.abs(G).max())):
         raise ParameterValidationError('gamma must be symmetric')
     if np.linalg.eigvalsh(G).min() <= 0.0:

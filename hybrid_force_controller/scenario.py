@@ -32,8 +32,8 @@ class ScenarioConfig:
     """The paper's scenario by default: k = 1700 N/m, 20 s, q(0) = (0.657, 0.913).
 
     The surface passes through the tool's start position (touching, zero force), with
-    normal ``n`` (into the surface). ``theta_hat0_scale`` multiplies the true masses to
-    give the initial estimate. ``overrides`` are controller parameter values.
+    normal ``n`` (into the surface). ``theta_hat0_scale`` (one factor or one per
+    parameter) multiplies the true parameters to give the initial estimate. ``overrides`` are controller parameter values.
     """
 
     k: float = 1700.0
@@ -42,7 +42,7 @@ class ScenarioConfig:
     delay_steps: int = 0
     noise_sigma: float = 0.0
     seed: int = 0
-    theta_hat0_scale: float = 1.0
+    theta_hat0_scale: float | tuple[float, ...] = 1.0
     substeps: int = 2
     overrides: dict[str, Any] = field(default_factory=dict)
 
@@ -80,7 +80,7 @@ def make_controller_params(model: RobotModel, overrides: dict[str, Any]) -> Cont
 def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> ScenarioResult:
     """Run the closed loop for ``cfg.duration`` seconds and return its time series."""
     model = RobotModel.from_urdf() if model is None else model
-    theta0 = model.theta_nominal * cfg.theta_hat0_scale
+    theta0 = model.theta_nominal * np.asarray(cfg.theta_hat0_scale, dtype=float)
     params = make_controller_params(model, {'theta_hat0': theta0.tolist(), **cfg.overrides})
     ctrl = HybridForceController(model, params)
     p0 = model.kinematics(np.array(cfg.q0), np.zeros(model.n)).p_W

@@ -9,12 +9,13 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={PACKAGE: ['robots/*.urdf']},
+    package_data={PACKAGE: ['robots/*.urdf', 'robots/LICENSE.panda']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
-        ('share/' + PACKAGE + '/robots', glob(PACKAGE + '/robots/*.urdf')),
+        ('share/' + PACKAGE + '/robots', glob(PACKAGE + '/robots/*.urdf')
+         + [PACKAGE + '/robots/LICENSE.panda']),
     ],
     install_requires=['setuptools', 'numpy'],
     # On a machine without apt ROS, `pip install .[pypi]` brings ROS 2 Jazzy from PyPI.

@@ -16,7 +16,6 @@ from typing import Any, Callable
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -27,11 +26,10 @@ from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
 
 from .diagnostics import controller_status
 from .loop_stats import LoopStats
-from .params import CONTROLLER_SCHEMA
+from .params import CONTROLLER_SCHEMA, MODEL_SCHEMA
 from .robot_model import RobotModel
 from .ros_params import ParameterBinder, declare_schema
-from .runtime import ControllerRuntime, InputError, TickOutput
-from .scenario import make_controller_params
+from .runtime import ControllerRuntime, InputError, TickOutput, params_for_model
 
 __all__ = ['ControllerNode', 'main']
 
@@ -48,11 +46,9 @@ class ControllerNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('hybrid_force_controller', **kwargs)
         values = declare_schema(self, CONTROLLER_SCHEMA, unit=('n',))
-        urdf = self.declare_parameter('robot_description', '', ParameterDescriptor(
-            description="URDF XML or file path ('' = the bundled 2-link arm).",
-            read_only=True)).value
-        self.model = RobotModel.from_urdf(urdf or None)
-        self.runtime = ControllerRuntime(self.model, make_controller_params(self.model, values))
+        model_values = declare_schema(self, MODEL_SCHEMA)
+        self.model = RobotModel.from_parameters(model_values, values['joints'])
+        self.runtime = ControllerRuntime(self.model, params_for_model(self.model, values))
         self.binder = ParameterBinder(self, CONTROLLER_SCHEMA, self.runtime.validate,
                                       self.runtime.set_params, unit=('n',))
         self.errors: Counter[str] = Counter()

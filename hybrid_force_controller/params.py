@@ -12,7 +12,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ['CONTROLLER_SCHEMA', 'ControllerParams', 'ParamSpec', 'ParameterValidationError',
+__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'ParamSpec', 'ParameterValidationError',
            'build_controller_params', 'check_stability', 'schema_defaults']
 
 
@@ -78,6 +78,21 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        'Inputs older than this put the controller in safe mode, s.', 0.0, 10.0, positive=True),
 )
 _SPECS = {s.name: s for s in CONTROLLER_SCHEMA}
+
+# The robot model, read once at start-up (shared by the controller and the sim node).
+MODEL_SCHEMA: tuple[ParamSpec, ...] = (
+    _S('robot_description', 'string', '',
+       "URDF XML (as robot_state_publisher provides it) or a URDF file path; '' = the "
+       "paper's 2-link arm.", read_only=True),
+    _S('base_link', 'string', '', "Base frame of the task space ('' = the URDF root); must "
+       'be fixed to the root.', read_only=True),
+    _S('end_effector_link', 'string', 'tool0', 'Frame whose origin is controlled.',
+       read_only=True),
+    _S('parameter_set', 'string', 'link_masses',
+       'Adapted parameters: link_masses, payload or full.', read_only=True),
+    _S('gravity', 'double_array', [0.0, -9.81, 0.0],
+       'Gravity in the URDF root frame, m/s^2 (z-up robots: [0, 0, -9.81]).', read_only=True),
+)
 
 
 @dataclass(frozen=True)

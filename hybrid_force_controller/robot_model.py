@@ -119,6 +119,18 @@ class RobotModel:
         return cls(model, end_effector_link, np.asarray(gravity_W, dtype=float),
                    parameter_set=parameter_set, base_link=base_link)
 
+    @classmethod
+    def from_parameters(cls, values: dict, joints: Sequence[str] | None = None) -> 'RobotModel':
+        """Build from MODEL_SCHEMA values (params.py) and the controlled ``joints``."""
+        gravity = np.asarray(values.get('gravity', (0.0, -9.81, 0.0)), dtype=float)
+        if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+            raise ModelError(f'gravity must be 3 finite numbers, got {gravity.tolist()}')
+        return cls.from_urdf(values.get('robot_description') or None,
+                             end_effector_link=values.get('end_effector_link') or 'tool0',
+                             base_link=values.get('base_link') or None, joints=joints,
+                             gravity_W=gravity,
+                             parameter_set=values.get('parameter_set') or 'link_masses')
+
     # ------------------------------------------------------------------ set-up helpers
     def _base_rotation(self, base_link: str) -> np.ndarray | None:
         """Rotation base <- root of a base frame fixed to the root (None: it is the root)."""

@@ -8,7 +8,7 @@ the caller's clock (node time, so ``use_sim_time`` works); nothing here reads a 
 
 Safe mode (inputs older than ``state_timeout``): ``tau = g_hat(q) - D qdot`` with
 ``g_hat`` the adapted gravity torque and joint damping ``D = k_d * (J^T J)`` mapped from
-the task damping, clamped to the effort limits; theta_hat and the force integral h are
+the task damping (``+ k_null I`` on redundant arms), clamped to the effort limits; theta_hat and the force integral h are
 frozen. On recovery the reference restarts from where the arm is and blends back into
 the sine over ``ref_blend_time``, so the effort does not jump.
 """
@@ -232,8 +232,11 @@ class ControllerRuntime:
         self.mode = 'safe'
         kin = self.model.kinematics(self._q, self._qdot)
         z = np.zeros(self.model.n)
-        g_hat = self.model.regressor_q(self._q, z, z, z) @ self.ctrl.theta_hat
+        Y_g, tau_0 = self.model.regressor_affine(self._q, z, z, z)
+        g_hat = Y_g @ self.ctrl.theta_hat + (0.0 if tau_0 is None else tau_0)
         tau = g_hat - self.params.k_d * (kin.J_ee.T @ kin.xdot)
+        if self.model.redundant:
+            tau -= self.params.k_null * self._qdot
         if not np.all(np.isfinite(tau)):
             tau = np.zeros(self.model.n)
         tau = np.clip(tau, -self.params.effort_limits, self.params.effort_limits)

@@ -3,6 +3,7 @@
 Offline figures (always):
 - ``controller_step_us_median`` / ``controller_step_us_p99``: one control-law plus
   adaptation step (eqs. 5-11, 26) of the 2-DOF arm along the paper trajectory;
+- ``controller_step_7dof_us_median`` / ``_p99``: the same for the 7-DOF Panda (redundant);
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline.
 With ``--ros``: the controller and sim nodes in real time at 1 kHz (see ros_bench.py).
 """
@@ -43,14 +44,37 @@ def controller_step_times_us(steps: int = 20000) -> np.ndarray:
     return out
 
 
+def panda_step_times_us(steps: int = 5000) -> np.ndarray:
+    """Wall time of each controller step of the 7-DOF Panda in its closed loop, us."""
+    from .arm7 import PANDA_Q0, panda_model, panda_scenario
+    model = panda_model()
+    cfg = panda_scenario(model)
+    params = make_controller_params(model, dict(cfg.overrides))
+    ctrl = HybridForceController(model, params)
+    q0 = np.array(PANDA_Q0)
+    surface = ElasticSurface.create(cfg.k, model.kinematics(q0, 0 * q0).p_W, params.n)
+    sim = ArmSimulator(model, surface, q0, substeps=2)
+    sine = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
+    meas, dt, out = sim.measure(), 1.0 / params.rate_hz, np.empty(steps)
+    for k in range(steps):
+        t0 = time.perf_counter_ns()
+        tau = ctrl.step(meas.q, meas.qdot, meas.f_W, sine(k * dt), dt).tau
+        out[k] = (time.perf_counter_ns() - t0) / 1e3
+        meas = sim.step(tau, dt)
+    return out
+
+
 def offline_figures() -> dict[str, float]:
     """Controller step percentiles and the paper scenario's real-time factor."""
     step_us = controller_step_times_us()
+    panda_us = panda_step_times_us()
     t0 = time.perf_counter()
     run_scenario(ScenarioConfig())
     wall = time.perf_counter() - t0
     return {'controller_step_us_median': round(float(np.median(step_us)), 2),
             'controller_step_us_p99': round(float(np.percentile(step_us, 99)), 2),
+            'controller_step_7dof_us_median': round(float(np.median(panda_us)), 2),
+            'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2)}
 

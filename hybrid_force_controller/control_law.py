@@ -104,9 +104,21 @@ class HybridForceController:
         """Install a validated parameter set; derived matrices are computed here, once."""
         ax = list(self.model.task_axes)
         n = params.n[ax]
-        self._derived = (params, n, np.eye(len(ax)) - np.outer(n, n),
+        P_t = np.eye(len(ax)) - np.outer(n, n)
+        self._derived = (params, n, self._linear_part(P_t, n, params.lambda1),
                          np.linalg.inv(params.Gamma), 1.0 / params.k_s)
         self.params = params
+
+    def _linear_part(self, P_t: np.ndarray, n: np.ndarray, l1: float) -> np.ndarray:
+        """G with ``G z = [r; rdot]`` minus their force terms, ``z = (x, xdot, x_d, xdot_d,
+        xddot_d)`` (x, xdot in task coordinates, the reference 3-D): one product per tick."""
+        m = len(n)
+        A = np.eye(3)[list(self.model.task_axes)]  # base frame -> task coordinates
+        Z = np.zeros((m, m))
+        r_row = np.hstack([-l1 * P_t, Z, l1 * P_t @ A, P_t @ A, np.zeros((m, 3))])
+        rdot_row = np.hstack([Z, -l1 * P_t - l1 * np.outer(n, n), np.zeros((m, 3)),
+                              l1 * P_t @ A, P_t @ A])
+        return np.vstack([r_row, rdot_row])
 
     def reset(self, theta_hat: np.ndarray | None = None) -> None:
         """Restart the adaptation (``theta_hat0`` by default) and the force integral."""
@@ -118,14 +130,13 @@ class HybridForceController:
     def reference_velocity(self, kin, ref: Reference, f: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """r and rdot from eqs. (8) and (11) (scaled form, module docstring); also e, df_n."""
-        p, n, P_t, _, c = self._derived
-        ax = self.model.task_index
-        xdot_d = ref.xdot_d_W[ax]
+        p, n, G, _, c = self._derived
+        m = len(n)
         df_n = float(n @ f) - p.f_d
         l1, l2 = p.lambda1, p.lambda2
-        r = P_t @ (xdot_d - l1 * (kin.x - ref.x_d_W[ax])) - (c * l1 * df_n + l2 * self.h) * n
-        rdot = (P_t @ (ref.xddot_d_W[ax] - l1 * (kin.xdot - xdot_d))
-                - (l1 * float(n @ kin.xdot) + l2 * df_n) * n)
+        lin = G @ np.concatenate((kin.x, kin.xdot, ref.x_d_W, ref.xdot_d_W, ref.xddot_d_W))
+        r = lin[:m] - (c * l1 * df_n + l2 * self.h) * n
+        rdot = lin[m:] - (l2 * df_n) * n
         return r, rdot, kin.xdot - r, df_n
 
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,

@@ -69,15 +69,18 @@ class ArmSimulator:
         self.t = 0.0
         self.tau = np.zeros(model.n)
         self._tau_c: np.ndarray | None = None  # contact torque at the current q, if known
+        self._pin_model, self._pin_data = model.model, model.data
 
     def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, pin.SE3]:
         """Contact force on the surface (base frame) and its joint torque ``-J_p^T f``."""
-        m, d, fid = self.model.model, self.model.data, self.model.frame_id
+        m, d, fid = self._pin_model, self._pin_data, self.model.frame_id
         J = pin.computeFrameJacobian(m, d, q, fid, _LWA)
         oMf = pin.updateFramePlacement(m, d, fid)
-        if self.surface is None:
+        surface = self.surface
+        depth = -1.0 if surface is None else float(surface.n_W @ (oMf.translation - surface.x0_W))
+        if depth <= 0.0:  # eqs. (12)-(13): the surface pushes but never pulls
             return np.zeros(3), np.zeros(self.model.n), oMf
-        f_W = self.surface.force(oMf.translation)
+        f_W = (surface.k * depth) * surface.n_W
         return f_W, -(J[:3].T @ f_W), oMf
 
     def step(self, tau: np.ndarray, dt: float) -> Measurement:
@@ -97,7 +100,7 @@ class ArmSimulator:
             tau_net = tau + tau_c
             if b or fc:
                 tau_net = tau_net - (b * qdot + fc * np.tanh(qdot / 1e-3))
-            qddot = self.model.forward_dynamics(q, qdot, tau_net)
+            qddot = pin.aba(self._pin_model, self._pin_data, q, qdot, tau_net)
             qdot = qdot + h * qddot
             q = q + h * qdot
         self.q, self.qdot = q, qdot

@@ -6,11 +6,13 @@ filter, the reference, the safe mode and the counters; the control law itself is
 :class:`~hybrid_force_controller.control_law.HybridForceController`. Times are seconds on
 the caller's clock (node time, so ``use_sim_time`` works); nothing here reads a clock.
 
-Safe mode (inputs older than ``state_timeout``): ``tau = g_hat(q) - D qdot`` with
-``g_hat`` the adapted gravity torque and joint damping ``D = k_d * (J^T J)`` mapped from
-the task damping (``+ k_null I`` on redundant arms), clamped to the effort limits; theta_hat and the force integral h are
-frozen. On recovery the reference restarts from where the arm is and blends back into
-the sine over ``ref_blend_time``, so the effort does not jump.
+Safe mode (inputs older than ``state_timeout``) holds the arm: ``tau = g_hat(q) + J^T f``
+(adapted gravity torque plus the last contact force, so the arm stays where it is against
+the surface), and, only while the joint velocity is fresh, ``- k_d J^T J qdot``
+(``- k_null qdot`` too on redundant arms); a stale velocity is never damped, since it would
+act as a constant push. Clamped to the effort limits; theta_hat and h are frozen. On
+recovery the reference restarts at the arm's position and velocity and blends back into
+the sine over ``ref_blend_time`` (reference.blend_start), so the effort does not jump.
 """
 from __future__ import annotations
 
@@ -173,14 +175,14 @@ class ControllerRuntime:
         f_W = self._filtered_force(dt)
         stale = t - min(self._t_state, self._t_wrench) > self.params.state_timeout
         if stale:
-            return self._safe(f_W, 'inputs older than state_timeout: safe mode')
+            return self._safe(f_W, 'inputs older than state_timeout: safe mode', t)
         if self.mode != 'running':
             self._start(t)
         try:
             out = self.ctrl.step(self._q, self._qdot, f_W, self._reference(), dt)
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
-            return self._safe(f_W, f'control law failed: {exc}')
+            return self._safe(f_W, f'control law failed: {exc}', t)
         self.counters['saturated_ticks'] += int(out.saturated)
         return self._output(out.tau, 'running', f_W, 'running', e=out.e)
 
@@ -210,10 +212,14 @@ class ControllerRuntime:
         """(Re)start tracking: the reference blends from where the arm is now."""
         self.mode = 'running'
         self._t0 = t if self._t0 is None else self._t0
-        self._t_blend0 = t
-        p_W = self.model.kinematics(self._q, self._qdot).p_W
-        n = self.params.n
-        self._offset = (np.eye(3) - np.outer(n, n)) @ (p_W - self._sine(t - self._t0).x_d_W)
+        self._t_blend0 = self._t_state
+        kin = self.model.kinematics(self._q, self._qdot)
+        pdot_W = np.zeros(3)
+        pdot_W[list(self.model.task_axes)] = kin.xdot
+        n, ref = self.params.n, self._sine(self._t_state - self._t0)
+        P_t = np.eye(3) - np.outer(n, n)
+        self._offset = P_t @ (kin.p_W - ref.x_d_W)
+        self._offset_vel = P_t @ (pdot_W - ref.xdot_d_W)
 
     def _reference(self) -> Reference:
         """Reference at the joint state's stamp (consistent with the delayed measurement)."""
@@ -223,10 +229,11 @@ class ControllerRuntime:
         ts = self._t_state - self._t0
         ref = self._sine(ts)
         return blend_start(ref, self._offset, self._t_state - self._t_blend0,
-                           self.params.ref_blend_time)
+                           self.params.ref_blend_time, self._offset_vel)
 
-    def _safe(self, f_W: np.ndarray, status: str) -> TickOutput:
-        """Gravity compensation with joint damping; adaptation and force loop frozen."""
+    def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
+        """Hold: gravity compensation plus the last contact force, damping only with a
+        fresh velocity; adaptation and force loop frozen."""
         if self.mode != 'safe':
             self.counters['safe_mode_entries'] += 1
         self.mode = 'safe'
@@ -234,9 +241,11 @@ class ControllerRuntime:
         z = np.zeros(self.model.n)
         Y_g, tau_0 = self.model.regressor_affine(self._q, z, z, z)
         g_hat = Y_g @ self.ctrl.theta_hat + (0.0 if tau_0 is None else tau_0)
-        tau = g_hat - self.params.k_d * (kin.J_ee.T @ kin.xdot)
-        if self.model.redundant:
-            tau -= self.params.k_null * self._qdot
+        tau = g_hat + kin.J_ee.T @ f_W[self.model.task_index]
+        if t - self._t_state <= self.params.state_timeout:  # the velocity is fresh: damp it
+            tau -= self.params.k_d * (kin.J_ee.T @ kin.xdot)
+            if self.model.redundant:
+                tau -= self.params.k_null * self._qdot
         if not np.all(np.isfinite(tau)):
             tau = np.zeros(self.model.n)
         tau = np.clip(tau, -self.params.effort_limits, self.params.effort_limits)

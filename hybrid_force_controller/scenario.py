@@ -89,7 +89,7 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> Scenar
     sine = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
     dt = 1.0 / params.rate_hz
     steps = int(round(cfg.duration / dt))
-    offset = _start_offset(params, sine, p0)
+    offset, offset_vel = _start_offset(params, sine, p0)
     filt = LowPassFilter(params.force_filter_hz)
     log = _Log(steps, len(theta0))
     meas = sim.measure()
@@ -97,7 +97,7 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> Scenar
     for k in range(steps):
         seen = pending[0]
         filt.update(seen.f_W, dt)
-        ref = blend_start(sine(seen.t), offset, seen.t, params.ref_blend_time)
+        ref = blend_start(sine(seen.t), offset, seen.t, params.ref_blend_time, offset_vel)
         out = ctrl.step(seen.q, seen.qdot, filt.value, ref, dt)
         log.record(k, meas, ctrl.theta_hat, out.tau)
         meas = sim.step(out.tau, dt)
@@ -107,10 +107,12 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None) -> Scenar
     return log.result(model, params, dt)
 
 
-def _start_offset(params: ControllerParams, sine: SineReference, p0: np.ndarray) -> np.ndarray:
-    """Tangential offset from x_d(0) to the start position (blended out, reference.py)."""
+def _start_offset(params: ControllerParams, sine: SineReference,
+                  p0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tangential position and velocity offsets of the resting start from x_d(0)."""
     P_t = np.eye(3) - np.outer(params.n, params.n)
-    return P_t @ (p0 - sine(0.0).x_d_W)
+    ref0 = sine(0.0)
+    return P_t @ (p0 - ref0.x_d_W), P_t @ -ref0.xdot_d_W
 
 
 class _Log:

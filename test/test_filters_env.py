@@ -1,0 +1,244 @@
+"""Force low-pass filter, elastic surface, wrench frame conversions and the reference."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hybrid_force_controller.environment import (ElasticSurface, SurfaceError,
+                                                 f_W_from_sensor_wrench, sensor_wrench_from_f_W)
+from hybrid_force_controller.filters import LowPassFilter
+from hybrid_force_controller.reference import Reference, SineReference, blend_start
+
+DT = 1e-3
+
+
+def rotation(rng) -> np.ndarray:
+    Q, R = np.linalg.qr(rng.normal(size=(3, 3)))
+    Q = Q * np.sign(np.diag(R))
+    return Q if np.linalg.det(Q) > 0 else -Q
+
+
+# ---------------------------------------------------------------- LowPassFilter
+def test_filter_starts_from_first_finite_sample():
+    filt = LowPassFilter(10.0)
+    assert not filt.ready
+    np.testing.assert_array_equal(filt.value, np.zeros(3))
+    u = np.array([0.3, -1.2, 5.0])
+    assert filt.update(u, DT)
+    assert filt.ready
+    np.testing.assert_array_equal(filt.value, u)  # no transient from zero
+    filt.update(u, DT)
+    np.testing.assert_allclose(filt.value, u, rtol=1e-15)
+
+
+@pytest.mark.parametrize('bad', [math.nan, math.inf, -math.inf])
+def test_filter_skips_non_finite_samples(bad):
+    filt = LowPassFilter(10.0)
+    assert not filt.update(np.array([bad, 0.0, 0.0]), DT)
+    assert not filt.ready  # a bad first sample does not start the filter
+    filt.update(np.array([1.0, 2.0, 3.0]), DT)
+    filt.update(np.array([2.0, 2.0, 3.0]), DT)
+    kept = filt.value.copy()
+    assert not filt.update(np.array([0.0, bad, 0.0]), DT)
+    np.testing.assert_array_equal(filt.value, kept)
+    # and the next good sample continues from the kept output
+    a = 1.0 - math.exp(-2 * math.pi * 10.0 * DT)
+    filt.update(np.array([2.0, 2.0, 3.0]), DT)
+    np.testing.assert_allclose(filt.value, kept + a * (np.array([2.0, 2.0, 3.0]) - kept))
+
+
+@pytest.mark.parametrize('cutoff_hz', [2.0, 20.0])
+def test_filter_step_response_has_first_order_time_constant(cutoff_hz):
+    tau = 1.0 / (2 * math.pi * cutoff_hz)
+    filt = LowPassFilter(cutoff_hz)
+    filt.update(np.zeros(3), DT)
+    step = np.array([1.0, -2.0, 0.5])
+    n = int(round(5 * tau / DT))
+    ys = []
+    for _ in range(n):
+        filt.update(step, DT)
+        ys.append(filt.value[0])
+    t = DT * np.arange(1, n + 1)
+    np.testing.assert_allclose(ys, 1.0 - np.exp(-t / tau), rtol=0, atol=1e-12)
+    k_tau = int(round(tau / DT))
+    assert ys[k_tau - 1] == pytest.approx(1 - math.exp(-1), abs=DT / tau)
+    np.testing.assert_allclose(filt.value, step * (1 - math.exp(-n * DT / tau)), rtol=1e-12)
+
+
+def test_filter_handles_changing_dt():
+    filt = LowPassFilter(5.0)
+    filt.update(np.zeros(3), DT)
+    filt.update(np.ones(3), 2e-3)
+    a2 = 1 - math.exp(-2 * math.pi * 5.0 * 2e-3)
+    assert filt.value[0] == pytest.approx(a2, rel=1e-12)
+    filt.update(np.ones(3), 1e-3)
+    a1 = 1 - math.exp(-2 * math.pi * 5.0 * 1e-3)
+    assert filt.value[0] == pytest.approx(a2 + a1 * (1 - a2), rel=1e-12)
+
+
+def test_filter_cutoff_zero_passes_through():
+    filt = LowPassFilter(0.0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        u = rng.normal(size=3)
+        filt.update(u, DT)
+        np.testing.assert_array_equal(filt.value, u)
+
+
+def test_filter_reset_restarts_from_next_sample():
+    filt = LowPassFilter(10.0)
+    filt.update(np.ones(3), DT)
+    filt.reset()
+    assert not filt.ready
+    filt.update(np.full(3, 7.0), DT)
+    np.testing.assert_array_equal(filt.value, np.full(3, 7.0))
+
+
+# ---------------------------------------------------------------- ElasticSurface
+@pytest.fixture
+def surface() -> ElasticSurface:
+    return ElasticSurface.create(1700.0, [1.0, 1.6, 0.0], [0.0, -1.0, 0.0])
+
+
+def test_surface_zero_force_outside(surface):
+    for p in ([1.0, 1.7, 0.0], [0.5, 1.6000001, 0.3], [1.0, 1.6, 0.0]):  # outside / on it
+        np.testing.assert_array_equal(surface.force(np.array(p)), np.zeros(3))
+        assert surface.penetration(np.array(p)) <= 0.0
+
+
+def test_surface_pushes_k_depth_n_inside(surface):
+    p = np.array([1.3, 1.6 - 2e-3, 0.1])  # 2 mm into the surface (n = -y)
+    assert surface.penetration(p) == pytest.approx(2e-3)
+    np.testing.assert_allclose(surface.force(p), 1700.0 * 2e-3 * np.array([0.0, -1.0, 0.0]),
+                               rtol=1e-12)
+    # tangential displacement does not change the force (frictionless)
+    np.testing.assert_allclose(surface.force(p + [0.5, 0.0, -0.2]), surface.force(p),
+                               rtol=1e-12)
+
+
+def test_surface_never_pulls():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        n = rng.normal(size=3)
+        s = ElasticSurface.create(rng.uniform(10, 1e4), rng.normal(size=3), n)
+        p = rng.normal(size=3)
+        f = s.force(p)
+        assert float(f @ s.n_W) >= 0.0
+        np.testing.assert_allclose(np.cross(f, s.n_W), 0.0, atol=1e-9)  # along n only
+
+
+def test_surface_normalises_normal():
+    s = ElasticSurface.create(100.0, [0, 0, 0], [0.0, -3.0, 4.0])
+    np.testing.assert_allclose(s.n_W, [0.0, -0.6, 0.8])
+    assert np.linalg.norm(s.n_W) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize('k', [0.0, -5.0, math.nan, math.inf])
+def test_surface_rejects_bad_stiffness(k):
+    with pytest.raises(SurfaceError, match='stiffness'):
+        ElasticSurface.create(k, [0, 0, 0], [0, -1, 0])
+
+
+@pytest.mark.parametrize('n', [[0, 0, 0], [1e-12, 0, 0], [math.nan, -1, 0], [0, -1]])
+def test_surface_rejects_bad_normal(n):
+    with pytest.raises(SurfaceError, match='normal'):
+        ElasticSurface.create(100.0, [0, 0, 0], n)
+
+
+@pytest.mark.parametrize('x0', [[math.nan, 0, 0], [0, math.inf, 0], [0, 0]])
+def test_surface_rejects_bad_point(x0):
+    with pytest.raises(SurfaceError, match='point'):
+        ElasticSurface.create(100.0, x0, [0, -1, 0])
+
+
+# ---------------------------------------------------------------- wrench conversions
+def test_sensor_wrench_conversions_are_inverses():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        R = rotation(rng)
+        f_W = rng.normal(size=3)
+        F = sensor_wrench_from_f_W(R, f_W)
+        np.testing.assert_allclose(f_W_from_sensor_wrench(R, F), f_W, atol=1e-14)
+        np.testing.assert_allclose(sensor_wrench_from_f_W(R, f_W_from_sensor_wrench(R, F)), F,
+                                   atol=1e-14)
+        assert np.linalg.norm(F) == pytest.approx(np.linalg.norm(f_W))
+
+
+def test_sensor_wrench_is_the_reaction_in_the_sensor_frame():
+    """The sensor reports the force ON the tool: -f, expressed in the tool frame."""
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z
+    f_W = np.array([0.0, -1.0, 0.0])  # tool pushes along -y (base)
+    # the surface pushes the tool along +y (base) = -x of the tool frame
+    np.testing.assert_allclose(sensor_wrench_from_f_W(R, f_W), [1.0, 0.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(sensor_wrench_from_f_W(np.eye(3), f_W), -f_W)
+
+
+# ---------------------------------------------------------------- reference
+def test_sine_reference_values():
+    ref = SineReference(np.array([1.0, 1.6, 0.0]), np.array([0.1, 0.0, 0.0]), 1.0)
+    r = ref(math.pi / 2)
+    np.testing.assert_allclose(r.x_d_W, [1.1, 1.6, 0.0])
+    np.testing.assert_allclose(r.xdot_d_W, [0.0, 0.0, 0.0], atol=1e-16)
+    np.testing.assert_allclose(r.xddot_d_W, [-0.1, 0.0, 0.0])
+
+
+@pytest.mark.parametrize('t', [0.0, 0.4, 1.3, 7.9])
+def test_sine_reference_derivatives_match_finite_differences(t):
+    ref = SineReference(np.array([1.0, 1.6, 0.2]), np.array([0.1, -0.05, 0.02]), 2.3)
+    h = 1e-5
+    fd_v = (ref(t + h).x_d_W - ref(t - h).x_d_W) / (2 * h)
+    fd_a = (ref(t + h).xdot_d_W - ref(t - h).xdot_d_W) / (2 * h)
+    np.testing.assert_allclose(ref(t).xdot_d_W, fd_v, atol=1e-8)
+    np.testing.assert_allclose(ref(t).xddot_d_W, fd_a, atol=1e-8)
+
+
+def _blend_case():
+    sine = SineReference(np.array([1.0, 1.6, 0.0]), np.array([0.1, 0.0, 0.0]), 1.0)
+    offset = np.array([-0.21, 0.0, 0.0])
+    return sine, offset, 2.0
+
+
+def test_blend_start_at_t0_is_reference_plus_offset():
+    sine, offset, tb = _blend_case()
+    r = blend_start(sine(0.0), offset, 0.0, tb)
+    np.testing.assert_allclose(r.x_d_W, sine(0.0).x_d_W + offset)
+    np.testing.assert_allclose(r.xdot_d_W, sine(0.0).xdot_d_W)  # the blend adds no velocity
+    np.testing.assert_allclose(r.xddot_d_W, sine(0.0).xddot_d_W)
+
+
+def test_blend_start_is_continuous_at_both_ends():
+    sine, offset, tb = _blend_case()
+    eps = 1e-7
+    # t = t_blend: from inside the blend to the plain reference
+    inside = blend_start(sine(tb - eps), offset, tb - eps, tb)
+    at = blend_start(sine(tb), offset, tb, tb)
+    for a, b in zip(inside, at):
+        np.testing.assert_allclose(a, b, atol=1e-5)
+    for a, b in zip(at, sine(tb)):
+        np.testing.assert_array_equal(a, b)
+    # t = 0: just after the start the output is x_d + offset (continuous)
+    after = blend_start(sine(eps), offset, eps, tb)
+    np.testing.assert_allclose(after.x_d_W, sine(0.0).x_d_W + offset, atol=1e-7)
+    np.testing.assert_allclose(after.xdot_d_W, sine(0.0).xdot_d_W, atol=1e-6)
+
+
+def test_blend_start_derivatives_match_finite_differences():
+    sine, offset, tb = _blend_case()
+    h = 1e-6
+    for t in (0.1, 0.7, 1.0, 1.6, 1.95):
+        r = blend_start(sine(t), offset, t, tb)
+        rp = blend_start(sine(t + h), offset, t + h, tb)
+        rm = blend_start(sine(t - h), offset, t - h, tb)
+        np.testing.assert_allclose(r.xdot_d_W, (rp.x_d_W - rm.x_d_W) / (2 * h), atol=1e-7)
+        np.testing.assert_allclose(r.xddot_d_W, (rp.xdot_d_W - rm.xdot_d_W) / (2 * h), atol=1e-6)
+
+
+def test_blend_start_midway_and_disabled():
+    sine, offset, tb = _blend_case()
+    mid = blend_start(sine(1.0), offset, 1.0, tb)
+    np.testing.assert_allclose(mid.x_d_W, sine(1.0).x_d_W + 0.5 * offset)  # b(1/2) = 1/2
+    ref = sine(0.3)
+    assert blend_start(ref, offset, 0.3, 0.0) is ref  # t_blend = 0: no blend
+    assert isinstance(blend_start(ref, offset, 0.3, 1.0), Reference)

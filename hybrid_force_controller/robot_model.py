@@ -257,6 +257,15 @@ class RobotModel:
         qddot_r = np.linalg.solve(kin.J_ee, rdot - kin.Jdot_ee @ qdot_r)
         return np.linalg.solve(kin.J_ee.T, self.regressor_q(q, qdot, qdot_r, qddot_r))
 
+    def base_from_root(self, p: np.ndarray, R: np.ndarray, J: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, rotation and (3 x n) Jacobian of a frame, from the URDF root frame
+        into ``base_link``."""
+        if self._R_BW is None:
+            return p, R, J
+        R_BW = self._R_BW
+        return R_BW @ (p - self._p_WB), R_BW @ R, R_BW @ J
+
     def _require_square(self) -> None:
         if self.redundant:
             raise ModelError('task-space terms (35)-(37) need a square Jacobian; '

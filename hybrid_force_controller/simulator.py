@@ -71,17 +71,20 @@ class ArmSimulator:
         self._tau_c: np.ndarray | None = None  # contact torque at the current q, if known
         self._pin_model, self._pin_data = model.model, model.data
 
-    def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, pin.SE3]:
-        """Contact force on the surface (base frame) and its joint torque ``-J_p^T f``."""
+    def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:
+        """Contact force on the surface, its joint torque ``-J_p^T f`` and the tool pose,
+        all in ``base_link`` (the frame of ``_W`` quantities)."""
         m, d, fid = self._pin_model, self._pin_data, self.model.frame_id
-        J = pin.computeFrameJacobian(m, d, q, fid, _LWA)
+        J = pin.computeFrameJacobian(m, d, q, fid, _LWA)[:3]
         oMf = pin.updateFramePlacement(m, d, fid)
+        # everything in base_link, the frame of the surface and of the controller
+        pose = self.model.base_from_root(oMf.translation, oMf.rotation, J)
         surface = self.surface
-        depth = -1.0 if surface is None else float(surface.n_W @ (oMf.translation - surface.x0_W))
+        depth = -1.0 if surface is None else float(surface.n_W @ (pose[0] - surface.x0_W))
         if depth <= 0.0:  # eqs. (12)-(13): the surface pushes but never pulls
-            return np.zeros(3), np.zeros(self.model.n), oMf
+            return np.zeros(3), np.zeros(self.model.n), pose
         f_W = (surface.k * depth) * surface.n_W
-        return f_W, -(J[:3].T @ f_W), oMf
+        return f_W, -(pose[2].T @ f_W), pose
 
     def step(self, tau: np.ndarray, dt: float) -> Measurement:
         """Advance ``dt`` seconds with the efforts ``tau`` held constant."""
@@ -110,9 +113,9 @@ class ArmSimulator:
 
     def measure(self) -> Measurement:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""
-        f_true, self._tau_c, oMf = self._contact(self.q)
+        f_true, self._tau_c, (p_W, R_W_ee, _) = self._contact(self.q)
         f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
         # q, qdot and tau are rebound (never mutated) by step(), so no copies are needed
-        return Measurement(self.t, self.q, self.qdot, self.tau, oMf.translation, oMf.rotation,
+        return Measurement(self.t, self.q, self.qdot, self.tau, p_W, R_W_ee,
                            f_meas, f_true,
                            bool(f_true.any()))

@@ -17,7 +17,7 @@ import pytest
 
 from hybrid_force_controller import scenario as scenario_module
 from hybrid_force_controller.analysis import compute_metrics
-from hybrid_force_controller.arm7 import PANDA_JOINTS, panda_model, panda_scenario, \
+from hybrid_force_controller.arm7 import PANDA_JOINTS, PANDA_Q0, panda_model, panda_scenario, \
     panda_urdf_path
 from hybrid_force_controller.parameter_sets import project_physical
 from hybrid_force_controller.robot_model import ModelError, RobotModel, default_urdf_path
@@ -379,5 +379,25 @@ def test_controller_node_starts_for_the_panda(panda_node):
     # theta_hat is advertised (it publishes only once it has inputs)
     topics = dict(tester.get_publisher_names_and_types_by_node('hybrid_force_controller', '/'))
     assert topics.get('/hybrid_force_controller/theta_hat') == ['std_msgs/msg/Float64MultiArray']
-    time.sleep(1.0)
-    assert proc.poll() is None, f'node exited ({proc.returncode}):\n{log_path.read_text()}'
+    # one joint state and one wrench: the node computes and publishes 7 finite efforts
+    from geometry_msgs.msg import WrenchStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+    efforts = []
+    tester.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                               lambda m: efforts.append(list(m.data)), 10)
+    pub_js = tester.create_publisher(JointState, '/joint_states', 10)
+    pub_f = tester.create_publisher(WrenchStamped, '/force_torque_sensor_broadcaster/wrench', 10)
+    deadline = time.monotonic() + TIMEOUT
+    while not efforts:
+        assert proc.poll() is None, f'node exited ({proc.returncode}):\n{log_path.read_text()}'
+        assert time.monotonic() < deadline, f'no effort published:\n{log_path.read_text()}'
+        pub_js.publish(JointState(name=list(PANDA_JOINTS), position=list(PANDA_Q0),
+                                  velocity=[0.0] * 7))
+        wrench = WrenchStamped()
+        wrench.header.frame_id = 'panda_hand_tcp'
+        pub_f.publish(wrench)
+        time.sleep(0.05)  # publishing interval of the wait-for-condition loop
+    assert len(efforts[-1]) == 7 and np.all(np.isfinite(efforts[-1]))
+    assert np.all(np.abs(efforts[-1]) <= np.array([87, 87, 87, 87, 12, 12, 12]) + 1e-9)
+    assert proc.poll() is None

@@ -32,7 +32,6 @@ Gamma = 70 I it makes the estimates converge in about a second instead of minute
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -97,6 +96,7 @@ class HybridForceController:
     def __init__(self, model: RobotModel, params: ControllerParams) -> None:
         self.model = model
         self._project = model.parameter_set.project
+        self._eye_n = np.eye(model.n)
         self.set_params(params)
         self.reset()
 
@@ -104,6 +104,8 @@ class HybridForceController:
         """Install a validated parameter set; derived matrices are computed here, once."""
         ax = list(self.model.task_axes)
         n = params.n[ax]
+        if hasattr(self, 'params') and not np.array_equal(params.n, self.params.n):
+            self.h = 0.0  # the force integral belongs to the old normal
         P_t = np.eye(len(ax)) - np.outer(n, n)
         self._derived = (params, n, self._linear_part(P_t, n, params.lambda1),
                          np.linalg.inv(params.Gamma), 1.0 / params.k_s)
@@ -126,6 +128,7 @@ class HybridForceController:
         self.theta_hat = (p.theta_hat0 if theta_hat is None else np.asarray(theta_hat)).copy()
         self.h = 0.0
         self.tau_prev: np.ndarray | None = None
+        self.last_kin = None  # kinematics of the last step (for the caller's outputs)
 
     def reference_velocity(self, kin, ref: Reference, f: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -157,7 +160,7 @@ class HybridForceController:
             raise ControlError(f'dt must be finite and > 0, got {dt}')
         p, n, _, Gamma_inv, _ = self._derived
         model = self.model
-        kin = model.kinematics(q, qdot)
+        kin = self.last_kin = model.kinematics(q, qdot)
         f = f_W[model.task_index]
         r, rdot, e, df_n = self.reference_velocity(kin, ref, f)
         J_pinv, N = (self._pinv(q, kin.J_ee) if model.redundant
@@ -173,7 +176,7 @@ class HybridForceController:
             tau -= p.k_null * (N.T @ (N @ s))
         if not math.isfinite(tau.sum()):
             raise ControlError('control law produced a non-finite effort')
-        tau_out = self._limit(tau)
+        tau_out = self.limit(tau)
         # eq. (26) in joint space: Y_x^T e = Y_q^T J^-1 e = Y_q^T s (square J)
         self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, p.k_s * s, dt,
                                      p.theta_min, p.theta_max)
@@ -195,9 +198,9 @@ class HybridForceController:
         M_inv = self.model.inertia_inverse(q)
         JM = J @ M_inv
         J_pinv = JM.T @ np.linalg.inv(JM @ J.T)
-        return J_pinv, np.eye(self.model.n) - J_pinv @ J
+        return J_pinv, self._eye_n - J_pinv @ J
 
-    def _limit(self, tau: np.ndarray) -> np.ndarray:
+    def limit(self, tau: np.ndarray) -> np.ndarray:
         """Clamp to the per-joint effort limits and the optional per-tick rate limit."""
         p = self.params
         if p.max_effort_rate > 0.0 and self.tau_prev is not None:

@@ -104,7 +104,7 @@ class ControllerNode(Node):
         if msg.header.frame_id not in ('', self.base_frame):
             raise InputError(f"reference frame '{msg.header.frame_id}' is not "
                              f"'{self.base_frame}' (no TF here)")
-        self.runtime.on_reference((msg.point.x, msg.point.y, msg.point.z), self._now())
+        self.runtime.on_reference((msg.point.x, msg.point.y, msg.point.z))
 
     def _on_timer(self) -> None:
         t_start = time.perf_counter()

@@ -24,9 +24,15 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin
 
-__all__ = ['PARAMETER_SETS', 'ParameterSet', 'make_parameter_set', 'project_physical']
+__all__ = ['PARAMETER_SETS', 'ParameterSet', 'ParameterSetError', 'make_parameter_set', 'project_physical']
 
 PARAMETER_SETS = ('link_masses', 'payload', 'full')
+
+
+class ParameterSetError(ValueError):
+    """Unknown parameter set, or a model it cannot be built for."""
+
+
 _NAMES10 = ('m', 'mcx', 'mcy', 'mcz', 'Ixx', 'Ixy', 'Iyy', 'Ixz', 'Iyz', 'Izz')
 
 
@@ -62,7 +68,7 @@ def _link_masses(model: pin.Model, ee_joint: int) -> ParameterSet:
         names.append(f'm_{model.names[j]}')
         masses.append(inertia.mass)
     if not cols:
-        raise ValueError('no link carries mass: nothing to adapt')
+        raise ParameterSetError('no link carries mass: nothing to adapt')
     m = np.array(masses)
     return ParameterSet('link_masses', np.column_stack(cols), np.zeros(10 * nb), tuple(names),
                         m, np.zeros_like(m), 10.0 * m)
@@ -92,7 +98,7 @@ def make_parameter_set(model: pin.Model, name: str, ee_joint: int) -> ParameterS
     """The named set for ``model`` (``ee_joint``: joint index of the end-effector body)."""
     builders = {'link_masses': _link_masses, 'payload': _payload, 'full': _full}
     if name not in builders:
-        raise ValueError(f"unknown parameter set '{name}', expected one of {PARAMETER_SETS}")
+        raise ParameterSetError(f"unknown parameter set '{name}', expected one of {PARAMETER_SETS}")
     return builders[name](model, ee_joint)
 
 

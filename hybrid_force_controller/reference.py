@@ -58,3 +58,48 @@ def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
         ddh1 = (-36 * s + 96 * s**2 - 60 * s**3) / T
         x, v, a = x + h1 * offset_vel_W, v + dh1 * offset_vel_W, a + ddh1 * offset_vel_W
     return Reference(x, v, a)
+
+
+class BlendedReference:
+    """The desired motion of a run: the sine or a held point, blended smoothly on changes.
+
+    Times ``tau`` are seconds since the run started. :meth:`start_from` makes the reference
+    begin at the arm's position and velocity; :meth:`switch` changes the base (sine
+    parameters, a held point, the normal) while the reference continues from where it
+    was. Both blend into the new base over ``t_blend`` with :func:`blend_start`. Only the
+    part along the surface is blended; along ``n`` the force loop acts.
+    """
+
+    def __init__(self, sine: SineReference, n_W: np.ndarray, t_blend: float) -> None:
+        self.sine, self.t_blend = sine, t_blend
+        self.P_t = np.eye(3) - np.outer(n_W, n_W)
+        self.x_hold_W: np.ndarray | None = None
+        self.dp_W, self.dv_W, self.tau_b = np.zeros(3), np.zeros(3), 0.0
+
+    def base(self, tau: float) -> Reference:
+        """The reference without the blend: the sine, or the held point at rest."""
+        if self.x_hold_W is None:
+            return self.sine(tau)
+        z = np.zeros(3)
+        return Reference(self.x_hold_W, z, z)
+
+    def __call__(self, tau: float) -> Reference:
+        return blend_start(self.base(tau), self.dp_W, tau - self.tau_b, self.t_blend, self.dv_W)
+
+    def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray) -> None:
+        """Blend from the position ``x_W`` and velocity ``xdot_W`` at ``tau``."""
+        b = self.base(tau)
+        self.dp_W, self.dv_W = self.P_t @ (x_W - b.x_d_W), self.P_t @ (xdot_W - b.xdot_d_W)
+        self.tau_b = tau
+
+    def switch(self, tau: float, *, sine: SineReference | None = None,
+               x_hold_W: np.ndarray | None = None, release: bool = False,
+               n_W: np.ndarray | None = None, t_blend: float | None = None) -> None:
+        """Change the base at ``tau`` and continue from the current reference."""
+        now = self(tau)
+        self.sine = self.sine if sine is None else sine
+        self.x_hold_W = None if release else (self.x_hold_W if x_hold_W is None else x_hold_W)
+        self.t_blend = self.t_blend if t_blend is None else t_blend
+        if n_W is not None:
+            self.P_t = np.eye(3) - np.outer(n_W, n_W)
+        self.start_from(tau, now.x_d_W, now.xdot_d_W)

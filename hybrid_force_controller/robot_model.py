@@ -11,7 +11,6 @@ arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import NamedTuple
 from importlib import resources
 from pathlib import Path
@@ -20,7 +19,7 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
-from .parameter_sets import make_parameter_set
+from .parameter_sets import ParameterSetError, make_parameter_set
 
 __all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
 
@@ -83,7 +82,7 @@ class RobotModel:
         self.n = model.nv
         try:
             ps = make_parameter_set(model, parameter_set, model.frames[self.frame_id].parentJoint)
-        except ValueError as exc:
+        except ParameterSetError as exc:
             raise ModelError(str(exc)) from None
         self.parameter_set = ps
         self._P, self._pi_0 = ps.P, ps.pi_0
@@ -96,9 +95,9 @@ class RobotModel:
         # a slice gives views (no copy) on the hot path; fancy indexing otherwise
         self.task_index = slice(a0, a1 + 1) if contiguous else list(self.task_axes)
         self.redundant = self.n > self.m
-        self.position_limits = (model.lowerPositionLimit.copy(), model.upperPositionLimit.copy())
         self.effort_limits = model.effortLimit.copy()
         self._zero = np.zeros(self.n)
+        self._frame_ids: dict[str, int] = {}
 
     @classmethod
     def from_urdf(cls, urdf: str | Path | None = None, *, end_effector_link: str = 'tool0',
@@ -172,13 +171,12 @@ class RobotModel:
         """
         model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
         pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
-        oMf = pin.updateFramePlacement(model, data, fid)
+        T_W_ee = pin.updateFramePlacement(model, data, fid)
         J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
         Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[:3]
-        p_W, R = oMf.translation, oMf.rotation
+        p_W, R, J = self.base_from_root(T_W_ee.translation, T_W_ee.rotation, J)
         if self._R_BW is not None:  # express everything in base_link
-            R_BW = self._R_BW
-            p_W, R, J, Jdot = R_BW @ (p_W - self._p_WB), R_BW @ R, R_BW @ J, R_BW @ Jdot
+            Jdot = self._R_BW @ Jdot
         J, Jdot = J[ax], Jdot[ax]
         return TaskKinematics(p_W, R, p_W[ax], J @ qdot, J, Jdot)
 
@@ -273,10 +271,13 @@ class RobotModel:
 
     def frame_rotation(self, q: np.ndarray, frame: str) -> np.ndarray:
         """Rotation of a model frame in ``base_link`` at ``q``; ModelError if unknown."""
-        if not self.model.existFrame(frame):
-            raise ModelError(f"unknown frame '{frame}'")
+        fid = self._frame_ids.get(frame)
+        if fid is None:
+            if not self.model.existFrame(frame):
+                raise ModelError(f"unknown frame '{frame}'")
+            fid = self._frame_ids[frame] = self.model.getFrameId(frame)
         pin.forwardKinematics(self.model, self.data, q)
-        R = pin.updateFramePlacement(self.model, self.data, self.model.getFrameId(frame)).rotation
+        R = pin.updateFramePlacement(self.model, self.data, fid).rotation
         return R.copy() if self._R_BW is None else self._R_BW @ R
 
     def forward_dynamics(self, q: np.ndarray, qdot: np.ndarray, tau: np.ndarray) -> np.ndarray:

@@ -12,7 +12,8 @@ the surface), and, only while the joint velocity is fresh, ``- k_d J^T J qdot``
 (``- k_null qdot`` too on redundant arms); a stale velocity is never damped, since it would
 act as a constant push. Clamped to the effort limits; theta_hat and h are frozen. On
 recovery the reference restarts at the arm's position and velocity and blends back into
-the sine over ``ref_blend_time`` (reference.blend_start), so the effort does not jump.
+the sine over ``ref_blend_time``, so the effort does not jump; a parameter change of the
+reference or a new held point blends the same way (reference.BlendedReference).
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from .control_law import ControlError, HybridForceController, in_contact
 from .environment import f_W_from_sensor_wrench
 from .filters import LowPassFilter
 from .params import ControllerParams, build_controller_params
-from .reference import Reference, SineReference, blend_start
+from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel
 
 __all__ = ['ControllerRuntime', 'InputError', 'TickOutput', 'params_for_model']
@@ -73,14 +74,15 @@ class ControllerRuntime:
                          'safe_mode_entries': 0, 'control_errors': 0, 'saturated_ticks': 0,
                          'clock_restarts': 0}
         self._q = self._qdot = None
-        self._t_state = self._t_wrench = self._t_tick = -np.inf
-        self._F = np.zeros(3)
-        self._R_frame: str | None = None
+        self._t_state = self._t_wrench = self._t_wrench_prev = self._t_tick = -np.inf
+        self._F_S = np.zeros(3)  # force of the environment on the tool, sensor frame S
+        self._wrench_frame_id: str | None = None
         self._new_wrench = False
-        self._x_ext: np.ndarray | None = None
         self._t0: float | None = None
         self.mode = 'waiting'
-        self.set_params(params)
+        self._filter = LowPassFilter(params.force_filter_hz)
+        self._ref = BlendedReference(_sine(params), params.n, params.ref_blend_time)
+        self._install(params)
 
     @property
     def params(self) -> ControllerParams:
@@ -95,19 +97,36 @@ class ControllerRuntime:
         return params_for_model(self.model, values)
 
     def set_params(self, params: ControllerParams) -> None:
-        """Install a validated set atomically; it takes effect on the next tick."""
-        self._index = self._joint_index(params.joints)
-        self._cmd_order = [self._index[j] for j in params.joints]
-        self.ctrl.set_params(params)
-        self._filter = LowPassFilter(params.force_filter_hz)
-        self._sine = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
-        self._x_ext = None
+        """Install a validated set atomically; it takes effect on the next tick.
 
-    def _joint_index(self, joints: Sequence[str]) -> dict[str, int]:
-        unknown = [j for j in joints if j not in self.model.joint_names]
+        A new filter cut-off keeps the filtered force; a new reference (``ref_*``, ``n``,
+        ``ref_blend_time``) releases a held point and blends from the current reference.
+        """
+        old = self.params
+        if params.force_filter_hz != old.force_filter_hz:
+            value, ready = self._filter.value.copy(), self._filter.ready
+            self._filter = LowPassFilter(params.force_filter_hz)
+            if ready:
+                self._filter.update(value, 0.0)
+        changed = any(not np.array_equal(getattr(params, k), getattr(old, k)) for k in
+                      ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time', 'n'))
+        self._install(params)
+        if changed:
+            self._ref.switch(self._tau(), sine=_sine(params), release=True, n_W=params.n,
+                             t_blend=params.ref_blend_time)
+
+    def _install(self, params: ControllerParams) -> None:
+        unknown = [j for j in params.joints if j not in self.model.joint_names]
         if unknown:
             raise InputError(f'joints not in the robot model: {unknown}')
-        return {name: i for i, name in enumerate(self.model.joint_names)}
+        self._cmd_order = [self.model.joint_names.index(j) for j in params.joints]
+        self.ctrl.set_params(params)
+        self._period = 1.0 / params.rate_hz
+        self._f_d_W = params.f_d * params.n
+
+    def _tau(self) -> float:
+        """Run time of the latest joint state (the reference's time)."""
+        return 0.0 if self._t0 is None else self._t_state - self._t0
 
     # ------------------------------------------------------------------ inputs
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
@@ -130,21 +149,20 @@ class ControllerRuntime:
         missing = [j for j in self.params.joints if j not in pos]
         if missing:
             raise InputError(f'joint state lacks controlled joint(s) {missing}')
-        idx = [pos[j] for j in self.model.joint_names]
-        q_arr = np.asarray(q, dtype=float)[idx]
-        v_arr = np.asarray(qdot, dtype=float)[idx] if qdot is not None and len(qdot) else None
-        if v_arr is None:
+        if qdot is None or not len(qdot):
             raise InputError('joint state has no velocities')
+        idx = [pos[j] for j in self.model.joint_names]
+        q_arr, v_arr = np.asarray(q, dtype=float)[idx], np.asarray(qdot, dtype=float)[idx]
         if not (np.all(np.isfinite(q_arr)) and np.all(np.isfinite(v_arr))):
             raise InputError('joint state holds NaN/Inf')
         return q_arr, v_arr
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
-        F = np.asarray(force, dtype=float)
+        F_S = np.asarray(force, dtype=float)
         problem = None
-        if F.shape != (3,) or not np.all(np.isfinite(F)):
-            problem = f'wrench holds NaN/Inf or is not 3-D: {F.tolist()}'
+        if F_S.shape != (3,) or not np.all(np.isfinite(F_S)):
+            problem = f'wrench holds NaN/Inf or is not 3-D: {F_S.tolist()}'
         elif not self.model.model.existFrame(frame_id or ' '):
             problem = f"wrench frame '{frame_id}' is not a frame of the robot model"
         elif t < self._t_wrench:
@@ -152,88 +170,79 @@ class ControllerRuntime:
         if problem:
             self.counters['wrench_dropped'] += 1
             raise InputError(problem)
-        self._F, self._R_frame, self._t_wrench, self._new_wrench = F, frame_id, t, True
+        self._t_wrench_prev, self._t_wrench = self._t_wrench, t
+        self._F_S, self._wrench_frame_id, self._new_wrench = F_S, frame_id, True
 
-    def on_reference(self, x_d_W: Sequence[float], t: float) -> None:
-        """Hold a user reference point (base frame) instead of the sine."""
+    def on_reference(self, x_d_W: Sequence[float]) -> None:
+        """Hold a user reference point (base frame) instead of the sine, blended in.
+
+        Any later change of a ``ref_*`` parameter (or ``n``) releases it."""
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
-        self._x_ext = x
+        self._ref.switch(self._tau(), x_hold_W=x)
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
         """Compute the command for time ``t`` from the latest inputs."""
         self.counters['ticks'] += 1
-        period = 1.0 / self.params.rate_hz
+        period = self._period
         if t < self._t_tick - period:  # the clock jumped back (e.g. a restarted /clock)
             self.restart_clock()
-        dt = float(np.clip(t - self._t_tick, 0.1 * period, 10.0 * period))
+        dt = min(max(t - self._t_tick, 0.1 * period), 10.0 * period)
         self._t_tick = max(self._t_tick, t)
-        if self._q is None or self._R_frame is None:
+        if self._q is None or self._wrench_frame_id is None:
             return self._output(None, 'waiting', None, 'waiting for joint states and wrench')
         f_W = self._filtered_force(dt)
-        stale = t - min(self._t_state, self._t_wrench) > self.params.state_timeout
-        if stale:
+        if t - min(self._t_state, self._t_wrench) > self.params.state_timeout:
             return self._safe(f_W, 'inputs older than state_timeout: safe mode', t)
         if self.mode != 'running':
-            self._start(t)
+            self._start()
+        ref = self._ref(self._tau())
         try:
-            out = self.ctrl.step(self._q, self._qdot, f_W, self._reference(), dt)
+            out = self.ctrl.step(self._q, self._qdot, f_W, ref, dt)
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
+        self.mode = 'running'
         self.counters['saturated_ticks'] += int(out.saturated)
-        return self._output(out.tau, 'running', f_W, 'running', e=out.e)
+        return self._output(out.tau, 'running', f_W, 'running', self.ctrl.last_kin.p_W,
+                            ref.x_d_W, out.e)
 
     def restart_clock(self) -> None:
-        """Forget the input stamps and restart the reference after a backward time jump.
-
-        The last samples are dropped (their stamps belong to the old clock), so the
-        controller waits for fresh inputs and then starts as after power-up, keeping
-        theta_hat.
-        """
+        """Forget the input stamps after a backward time jump and start as after power-up
+        (keeping theta_hat; the force integral and the rate limiter restart)."""
         self.counters['clock_restarts'] += 1
-        self._q = self._qdot = self._R_frame = None
-        self._t_state = self._t_wrench = self._t_tick = -np.inf
+        self._q = self._qdot = self._wrench_frame_id = None
+        self._t_state = self._t_wrench = self._t_wrench_prev = self._t_tick = -np.inf
         self._t0 = None
         self.mode = 'waiting'
         self._filter.reset()
+        self.ctrl.reset(self.ctrl.theta_hat)
 
     def _filtered_force(self, dt: float) -> np.ndarray:
+        """f_W: the newest wrench in the base frame, low-pass filtered over wrench stamps."""
         if self._new_wrench:
-            R = (np.eye(3) if self._R_frame == self.model.base_link
-                 else self.model.frame_rotation(self._q, self._R_frame))
-            self._filter.update(f_W_from_sensor_wrench(R, self._F), dt)
+            frame = self._wrench_frame_id
+            R = None if frame == self.model.base_link else self.model.frame_rotation(self._q,
+                                                                                   frame)
+            f_W = -self._F_S if R is None else f_W_from_sensor_wrench(R, self._F_S)
+            gap = self._t_wrench - self._t_wrench_prev
+            self._filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else dt)
             self._new_wrench = False
         return self._filter.value
 
-    def _start(self, t: float) -> None:
-        """(Re)start tracking: the reference blends from where the arm is now."""
-        self.mode = 'running'
-        self._t0 = t if self._t0 is None else self._t0
-        self._t_blend0 = self._t_state
+    def _start(self) -> None:
+        """(Re)start tracking: the reference blends from the arm's position and velocity."""
+        self._t0 = self._t_state if self._t0 is None else self._t0
         kin = self.model.kinematics(self._q, self._qdot)
         pdot_W = np.zeros(3)
-        pdot_W[list(self.model.task_axes)] = kin.xdot
-        n, ref = self.params.n, self._sine(self._t_state - self._t0)
-        P_t = np.eye(3) - np.outer(n, n)
-        self._offset = P_t @ (kin.p_W - ref.x_d_W)
-        self._offset_vel = P_t @ (pdot_W - ref.xdot_d_W)
-
-    def _reference(self) -> Reference:
-        """Reference at the joint state's stamp (consistent with the delayed measurement)."""
-        if self._x_ext is not None:
-            z = np.zeros(3)
-            return Reference(self._x_ext, z, z)
-        ts = self._t_state - self._t0
-        ref = self._sine(ts)
-        return blend_start(ref, self._offset, self._t_state - self._t_blend0,
-                           self.params.ref_blend_time, self._offset_vel)
+        pdot_W[self.model.task_index] = kin.xdot
+        self._ref.start_from(self._tau(), kin.p_W, pdot_W)
 
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
         """Hold: gravity compensation plus the last contact force, damping only with a
-        fresh velocity; adaptation and force loop frozen."""
+        fresh velocity; adaptation and force loop frozen; effort and rate limits apply."""
         if self.mode != 'safe':
             self.counters['safe_mode_entries'] += 1
         self.mode = 'safe'
@@ -248,19 +257,21 @@ class ControllerRuntime:
                 tau -= self.params.k_null * self._qdot
         if not np.all(np.isfinite(tau)):
             tau = np.zeros(self.model.n)
-        tau = np.clip(tau, -self.params.effort_limits, self.params.effort_limits)
-        return self._output(tau, 'safe', f_W, status)
+        return self._output(self.ctrl.limit(tau), 'safe', f_W, status, kin.p_W.copy())
 
-    def _output(self, tau, mode: str, f_W, status: str, e=None) -> TickOutput:
-        p, ax = self.params, list(self.model.task_axes)
-        x_W = np.zeros(3) if self._q is None else self.model.kinematics(self._q, self._qdot).p_W
-        f = np.zeros(3) if f_W is None else f_W
+    def _output(self, tau, mode: str, f_W, status: str, x_W=None, x_d_W=None,
+                e=None) -> TickOutput:
+        p = self.params
+        x_W = np.zeros(3) if x_W is None else x_W
+        f = np.zeros(3) if f_W is None else f_W.copy()
         e_W = np.zeros(3)
         if e is not None:
-            e_W[ax] = e
-        x_d = self._reference().x_d_W if mode == 'running' else x_W
+            e_W[self.model.task_index] = e
         tau = None if tau is None else tau[self._cmd_order]
-        return TickOutput(tau, mode, x_W, x_d, f, p.f_d * p.n, e_W, self.ctrl.theta_hat.copy(),
-                          self.model.theta_names,
-                          in_contact(float(p.n @ f), p.f_d),
-                          dict(self.counters), status)
+        return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self._f_d_W,
+                          e_W, self.ctrl.theta_hat.copy(), self.model.theta_names,
+                          in_contact(float(p.n @ f), p.f_d), dict(self.counters), status)
+
+
+def _sine(params: ControllerParams) -> SineReference:
+    return SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)

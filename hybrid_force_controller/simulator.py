@@ -6,7 +6,6 @@ The same plant runs inside the ``sim`` node. Pure numpy + pinocchio; the caller 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -76,9 +75,9 @@ class ArmSimulator:
         all in ``base_link`` (the frame of ``_W`` quantities)."""
         m, d, fid = self._pin_model, self._pin_data, self.model.frame_id
         J = pin.computeFrameJacobian(m, d, q, fid, _LWA)[:3]
-        oMf = pin.updateFramePlacement(m, d, fid)
+        T_W_ee = pin.updateFramePlacement(m, d, fid)
         # everything in base_link, the frame of the surface and of the controller
-        pose = self.model.base_from_root(oMf.translation, oMf.rotation, J)
+        pose = self.model.base_from_root(T_W_ee.translation, T_W_ee.rotation, J)
         surface = self.surface
         depth = -1.0 if surface is None else float(surface.n_W @ (pose[0] - surface.x0_W))
         if depth <= 0.0:  # eqs. (12)-(13): the surface pushes but never pulls

@@ -14,8 +14,9 @@ from pathlib import Path
 
 PACKAGE = 'hybrid_force_controller'
 CORE_MODULES = [f'{PACKAGE}.{name}' for name in
-                ['robot_model', 'params', 'control_law', 'environment', 'simulator',
-                 'reference', 'filters', 'analysis']]
+                ['robot_model', 'parameter_sets', 'params', 'control_law', 'environment',
+                 'simulator', 'reference', 'filters', 'analysis', 'runtime', 'scenario',
+                 'arm7', 'loop_stats']]
 FORBIDDEN = ['rclpy', 'rosbags', 'matplotlib']
 REPO_ROOT = Path(__file__).resolve().parent.parent
 

@@ -184,6 +184,8 @@ class HybridForceController:
             self.theta_hat = self._project(self.theta_hat)
         if in_contact(df_n + p.f_d, p.f_d):  # anti-windup: h frozen while out of contact
             self.h = min(max(self.h + df_n * dt, -p.integral_limit), p.integral_limit)
+        else:  # ... and never holding a retreat (h > 0 after a spike or a hard re-contact)
+            self.h = min(self.h, 0.0)
         return ControlOutput(tau_out, e, self.theta_hat,
                              self.h, bool((tau_out != tau).any()))
 

@@ -110,14 +110,16 @@ class ControllerNode(Node):
         t_start = time.perf_counter()
         now = self.get_clock().now()
         out = self._last = self.runtime.tick(now.nanoseconds * 1e-9)
-        if out.mode != self._mode:
-            log = self.get_logger().error if out.mode == 'safe' else self.get_logger().info
-            log(f'mode {out.mode}: {out.status}')
-            self._mode = out.mode
         if out.tau is not None:
             messages = self._messages(out, now.to_msg())  # build all first: all or nothing
             for publisher, msg in messages:
                 publisher.publish(msg)
+        if out.mode != self._mode:  # one call site per severity: rclpy refuses to mix them
+            self._mode = out.mode
+            if out.mode == 'safe':
+                self.get_logger().error(f'mode safe: {out.status}')
+            else:
+                self.get_logger().info(f'mode {out.mode}: {out.status}')
         self.loop_stats.record(t_start, time.perf_counter())
 
     def _on_diagnostics(self) -> None:

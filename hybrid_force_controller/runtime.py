@@ -243,14 +243,15 @@ class ControllerRuntime:
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
         """Hold: gravity compensation plus the last contact force, damping only with a
         fresh velocity; adaptation and force loop frozen; effort and rate limits apply."""
-        if self.mode != 'safe':
-            self.counters['safe_mode_entries'] += 1
+        if self.mode != 'safe':  # the force at entry is held: adding the live force would
+            self.counters['safe_mode_entries'] += 1  # cancel the surface's reaction (with
+            self._f_hold = f_W[self.model.task_index].copy()  # stale q: positive feedback)
         self.mode = 'safe'
         kin = self.model.kinematics(self._q, self._qdot)
         z = np.zeros(self.model.n)
         Y_g, tau_0 = self.model.regressor_affine(self._q, z, z, z)
         g_hat = Y_g @ self.ctrl.theta_hat + (0.0 if tau_0 is None else tau_0)
-        tau = g_hat + kin.J_ee.T @ f_W[self.model.task_index]
+        tau = g_hat + kin.J_ee.T @ self._f_hold
         if t - self._t_state <= self.params.state_timeout:  # the velocity is fresh: damp it
             tau -= self.params.k_d * (kin.J_ee.T @ kin.xdot)
             if self.model.redundant:

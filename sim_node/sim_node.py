@@ -8,6 +8,8 @@ environment exerts on the tool, in ``tool0``, with noise) and ``/sim/contact_wre
 the state and ``/clock`` (equal stamps) and steps once per received command; a 0.2 s wall
 watchdog steps anyway (held or zero effort, brakes before the first command), so a lost
 message cannot deadlock the loop and a controller with ``use_sim_time`` gets its first tick.
+The surface (``stiffness``, ``surface_point``, ``surface_normal``, ``surface_enabled``) can be
+set at run time; a set is validated as a whole and swapped in between two steps.
 """
 from __future__ import annotations
 
@@ -28,16 +30,18 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hybrid_force_controller.environment import ElasticSurface, sensor_wrench_from_f_W
+from hybrid_force_controller.environment import (ElasticSurface, SurfaceError,
+                                                 sensor_wrench_from_f_W)
 from hybrid_force_controller.params import ParameterValidationError, ParamSpec as _S
 from hybrid_force_controller.robot_model import RobotModel
-from hybrid_force_controller.ros_params import declare_schema
+from hybrid_force_controller.ros_params import ParameterBinder, declare_schema
 from hybrid_force_controller.simulator import ArmSimulator, Measurement
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
 
 WATCHDOG_S = 0.2
-SIM_SCHEMA = tuple(_S(*a, read_only=True, **k) for *a, k in (
+SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled')  # settable
+SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
     ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
     ('robot_description', 'string', '', "URDF XML or path ('' = bundled 2-link arm).", {}),
@@ -45,14 +49,14 @@ SIM_SCHEMA = tuple(_S(*a, read_only=True, **k) for *a, k in (
     ('surface_point', 'double_array', [],
      'Point of the undeformed surface, base frame, m ([] = tool start: touching, 0 N).', {}),
     ('surface_normal', 'double_array', [0.0, -1.0, 0.0], 'Surface normal (into it), base.', {}),
+    ('surface_enabled', 'bool', True, 'false: no surface (free motion, e.g. contact loss).', {}),
     ('masses', 'double_array', [], 'True link masses, kg ([] = URDF).', {}),
     ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
     ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
     ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
     ('substeps', 'integer', 4, 'Integration sub-steps per step.', 1, 1000, {}),
-    ('command_timeout', 'double', 0.1,
-     'Zero effort after this long without a command, s (sim time in lockstep).',
-     1e-6, 60.0, {}),
+    ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
+     '(sim time in lockstep).', 1e-6, 60.0, {}),
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
 ))
 
@@ -70,12 +74,12 @@ class SimNode(Node):
         self.to_model = [self.joints.index(j) for j in model.joint_names]
         self.to_msg = [model.joint_names.index(j) for j in self.joints]
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
-        p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
-        surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or p0_W,
-                                        v['surface_normal'])
+        self.p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
         plant = model.with_theta(v['masses']) if v['masses'] else model
-        self.sim = ArmSimulator(plant, surface, q0, substeps=v['substeps'],
+        self.sim = ArmSimulator(plant, self._surface(v)[0], q0, substeps=v['substeps'],
                                 noise_sigma=v['noise_sigma'], seed=v['seed'])
+        self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],
+                                      self._surface, self._set_surface, unit=('surface_normal',))
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
         self.command_timeout = v['command_timeout']
         self.base_frame, self.tool_frame = model.base_link, model.end_effector_link
@@ -91,10 +95,22 @@ class SimNode(Node):
         self.create_subscription(Float64MultiArray, '/effort_controller/commands',
                                  self._guarded('command', self._on_command), qos)
         period, tick = ((WATCHDOG_S / 4, self._on_watchdog) if self.lockstep
-                        else (self.dt, self._on_timer))
+                        else (self.dt, lambda: self._step(self._effort())))
         self.timer = self.create_timer(period, self._guarded('timer', tick),
                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._publish(self.sim.measure())
+
+    def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None]:
+        """The surface the values describe (None when disabled); SurfaceError says why not."""
+        if not isinstance(v['stiffness'], float) or not isinstance(v['surface_enabled'], bool):
+            raise SurfaceError('stiffness must be a number and surface_enabled a bool')
+        surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or self.p0_W,
+                                        v['surface_normal'])
+        return (surface if v['surface_enabled'] else None,)
+
+    def _set_surface(self, surface: tuple[ElasticSurface | None]) -> None:
+        """Swap the surface in; the contact torque measure() cached for the old one is dropped."""
+        self.sim.surface, self.sim._tau_c = surface[0], None
 
     def _guarded(self, name: str, callback: Callable) -> Callable:
         """Wrap a callback: exceptions are counted and logged (throttled), never raised."""
@@ -118,10 +134,6 @@ class SimNode(Node):
         if self.lockstep:
             self._step(self.tau_cmd)
 
-    def _on_timer(self) -> None:
-        """Real-time mode: one step per wall period."""
-        self._step(self._effort())
-
     def _on_watchdog(self) -> None:
         """Lockstep: step anyway when no command came for WATCHDOG_S (wall)."""
         if time.monotonic() - self.t_pub >= WATCHDOG_S:
@@ -134,21 +146,17 @@ class SimNode(Node):
 
     def _effort(self) -> np.ndarray | None:
         """Held command; zeros once it is older than command_timeout; None (brakes) before."""
-        if self.tau_cmd is None:
-            return None
-        if self._time() - self.t_cmd > self.command_timeout:
-            self.get_logger().warning('no valid command within command_timeout: zero effort',
-                                      throttle_duration_sec=1.0)
-            return np.zeros_like(self.tau_cmd)
-        return self.tau_cmd
+        if self.tau_cmd is None or self._time() - self.t_cmd <= self.command_timeout:
+            return self.tau_cmd
+        self.get_logger().warning('no valid command within command_timeout: zero effort',
+                                  throttle_duration_sec=1.0)
+        return np.zeros_like(self.tau_cmd)
 
     def _step(self, tau: np.ndarray | None) -> None:
         """One step of 1/rate_hz (``None``: brakes hold the arm, time still advances)."""
         if tau is None:
             self.sim.t += self.dt
-            meas = self.sim.measure()
-        else:
-            meas = self.sim.step(tau, self.dt)
+        meas = self.sim.measure() if tau is None else self.sim.step(tau, self.dt)
         self.counters['steps'] += 1
         self._publish(meas)
 
@@ -164,11 +172,9 @@ class SimNode(Node):
                                   (true, self.base_frame, meas.f_true_W)):
             msg.header.frame_id = frame
             msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = map(float, force)
-        for msg in (js, ft, true):
+        for pub, msg in ((self.pub_js, js), (self.pub_ft, ft), (self.pub_true, true)):
             msg.header.stamp = stamp
-        self.pub_js.publish(js)
-        self.pub_ft.publish(ft)
-        self.pub_true.publish(true)
+            pub.publish(msg)
         if self.pub_clock is not None:
             self.pub_clock.publish(ClockMsg(clock=stamp))
         self.t_pub = time.monotonic()

@@ -13,11 +13,8 @@ import time
 from collections import Counter
 from typing import Any, Callable
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.time import Time
@@ -28,7 +25,7 @@ from .diagnostics import controller_status
 from .loop_stats import LoopStats
 from .params import CONTROLLER_SCHEMA, MODEL_SCHEMA
 from .robot_model import RobotModel
-from .ros_params import ParameterBinder, declare_schema
+from .ros_params import ParameterBinder, declare_schema, run_node
 from .runtime import ControllerRuntime, InputError, TickOutput, params_for_model
 
 __all__ = ['ControllerNode', 'main']
@@ -146,21 +143,7 @@ class ControllerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until shutdown; 1 if the parameters or the URDF are invalid."""
-    rclpy.init(args=args)
-    try:
-        node = ControllerNode()
-    except (ValueError, ParameterException) as exc:  # ParameterValidationError, ModelError
-        print(f'hybrid_force_controller: invalid configuration: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(ControllerNode, 'hybrid_force_controller', args)
 
 
 if __name__ == '__main__':

@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import array
 import math
+import sys
 from typing import Any, Callable, Generic, Iterable, Sequence, TypeVar
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -168,3 +172,23 @@ class ParameterBinder(Generic[T]):
                 self.apply(pending)
         except Exception as exc:  # noqa: BLE001 - never raise into the parameter service
             self.node.get_logger().error(f'installing parameters failed: {exc!r}')
+
+
+def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None = None) -> int:
+    """rclpy.init, build the node, spin until shutdown; 1 (with the reason on stderr) if
+    the node cannot be configured (a ValueError subclass or a ParameterException)."""
+    rclpy.init(args=args)
+    try:
+        node = make_node()
+    except (ValueError, ParameterException) as exc:
+        print(f'{label}: invalid configuration: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

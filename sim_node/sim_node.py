@@ -18,11 +18,8 @@ import time
 from typing import Any, Callable
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.time import Time
@@ -32,9 +29,10 @@ from std_msgs.msg import Float64MultiArray
 
 from hybrid_force_controller.environment import (ElasticSurface, SurfaceError,
                                                  sensor_wrench_from_f_W)
-from hybrid_force_controller.params import ParameterValidationError, ParamSpec as _S
+from hybrid_force_controller.params import (MODEL_SCHEMA, ParameterValidationError,
+                                            ParamSpec as _S)
 from hybrid_force_controller.robot_model import RobotModel
-from hybrid_force_controller.ros_params import ParameterBinder, declare_schema
+from hybrid_force_controller.ros_params import ParameterBinder, declare_schema, run_node
 from hybrid_force_controller.simulator import ArmSimulator, Measurement
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
@@ -44,7 +42,6 @@ SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled')  #
 SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
     ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
-    ('robot_description', 'string', '', "URDF XML or path ('' = bundled 2-link arm).", {}),
     ('stiffness', 'double', 1700.0, 'Surface stiffness k, N/m.', 1e-6, 1e9, {}),
     ('surface_point', 'double_array', [],
      'Point of the undeformed surface, base frame, m ([] = tool start: touching, 0 N).', {}),
@@ -67,7 +64,7 @@ class SimNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('sim', **kwargs)
         v = declare_schema(self, SIM_SCHEMA, unit=('surface_normal',))
-        model = RobotModel.from_urdf(v['robot_description'] or None)
+        model = RobotModel.from_parameters(declare_schema(self, MODEL_SCHEMA), v['joints'])
         self.joints = list(v['joints'])
         if sorted(self.joints) != sorted(model.joint_names):
             raise ParameterValidationError(f'joints must be a permutation of {model.joint_names}')
@@ -182,21 +179,7 @@ class SimNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the simulator until shutdown; 1 if its parameters are invalid."""
-    rclpy.init(args=args)
-    try:
-        node = SimNode()
-    except (ValueError, ParameterException) as exc:  # ParameterValidationError, SurfaceError
-        print(f'sim: invalid configuration: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(SimNode, 'sim', args)
 
 
 if __name__ == '__main__':

@@ -4,7 +4,6 @@ Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds);
 test starts the controller node for the Panda as a subprocess on ROS domain 93.
 """
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -23,6 +22,7 @@ from hybrid_force_controller.parameter_sets import project_physical
 from hybrid_force_controller.robot_model import ModelError, RobotModel, default_urdf_path
 from hybrid_force_controller.scenario import PAPER_Q0, ScenarioConfig, run_scenario
 from hybrid_force_controller.simulator import ArmSimulator
+from test_nodes_closed_loop import _stop as stop_process
 
 ROOT = Path(__file__).resolve().parents[1]
 PLANAR3 = Path(__file__).resolve().parent / 'three_link_planar.urdf'
@@ -343,13 +343,7 @@ def panda_node(tmp_path):
     try:
         yield proc, tester, log_path
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+        stop_process(proc)
         log.close()
         executor.shutdown(timeout_sec=TIMEOUT)
         tester.destroy_node()

@@ -19,7 +19,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 
 from .diagnostics import controller_status
 from .loop_stats import LoopStats
@@ -66,6 +66,9 @@ class ControllerNode(Node):
         self.pub_e = self.create_publisher(Vector3Stamped, '~/error', qos)
         self.pub_theta = self.create_publisher(Float64MultiArray, '~/theta_hat', qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', qos)
+        p = len(self.model.theta_names)  # the theta_hat layout never changes: build it once
+        self._theta_layout = MultiArrayLayout(dim=[MultiArrayDimension(
+            label=','.join(self.model.theta_names), size=p, stride=p)])
         self.loop_stats = LoopStats()
         self._last: TickOutput | None = None
         self.timer = self.create_timer(1.0 / self.runtime.params.rate_hz,
@@ -133,10 +136,8 @@ class ControllerNode(Node):
                           (f_d.wrench.force, out.f_d_W), (e.vector, out.e_W)):
             target.x, target.y, target.z = (float(c) for c in v)
         tau = Float64MultiArray(data=[float(c) for c in out.tau])
-        theta = Float64MultiArray(data=[float(c) for c in out.theta_hat])
-        p = len(out.theta_hat)
-        theta.layout.dim = [MultiArrayDimension(label=','.join(out.theta_names), size=p,
-                                                stride=p)]
+        theta = Float64MultiArray(layout=self._theta_layout,
+                                  data=[float(c) for c in out.theta_hat])
         return [(self.pub_tau, tau), (self.pub_x, x), (self.pub_x_d, x_d), (self.pub_f, f),
                 (self.pub_f_d, f_d), (self.pub_e, e), (self.pub_theta, theta)]
 

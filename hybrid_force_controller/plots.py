@@ -61,6 +61,17 @@ def _plot_position(log: RunLog, path: Path) -> Path:
     return path
 
 
+def _finish(fig: Figure, ax, path: Path, ylabel: str, title: str) -> Path:
+    """Label a time plot, add grid and legend, save it."""
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc='best')
+    fig.savefig(path)
+    return path
+
+
 def _plot_force(log: RunLog, path: Path) -> Path:
     """Fig. 4: normal force actual vs desired, contact losses shaded."""
     fig, (ax,) = _new_figure(1)
@@ -71,13 +82,7 @@ def _plot_force(log: RunLog, path: Path) -> Path:
     for k, (t0, t1) in enumerate(_contact_lost_spans(log)):
         ax.axvspan(t0, t1, color='tab:red', alpha=0.2,
                    label='contact lost' if k == 0 else None)
-    ax.set_xlabel('t [s]')
-    ax.set_ylabel('n^T f [N]')
-    ax.set_title('Force tracking along the surface normal')
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc='best')
-    fig.savefig(path)
-    return path
+    return _finish(fig, ax, path, 'n^T f [N]', 'Force tracking along the surface normal')
 
 
 def _plot_parameters(log: RunLog, path: Path) -> Path:
@@ -88,13 +93,7 @@ def _plot_parameters(log: RunLog, path: Path) -> Path:
         if log.theta_true is not None:
             ax.axhline(log.theta_true[i], ls='--', color=line.get_color(),
                        label=f'{name} true')
-    ax.set_xlabel('t [s]')
-    ax.set_ylabel('theta_hat')
-    ax.set_title('Estimation of unknown dynamic parameters')
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc='best')
-    fig.savefig(path)
-    return path
+    return _finish(fig, ax, path, 'theta_hat', 'Estimation of unknown dynamic parameters')
 
 
 def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:

@@ -203,26 +203,18 @@ def test_jacobian_dot_matches_finite_difference(arm_and_states):
         _assert_close(kin.xdot, kin.J_ee @ qdot, what='xdot = J qdot')
 
 
-def test_task_space_skew_symmetry(arm_and_states):
-    """Mdot_x - 2 C_x is skew-symmetric, eq. (3) (Mdot_x by central difference along qdot)."""
+@pytest.mark.parametrize('terms', ['task_terms', 'joint_terms'])
+def test_skew_symmetry(arm_and_states, terms):
+    """Mdot - 2 C is skew-symmetric, eq. (3), in task space (M_x, C_x) and in joint space
+    (Mdot by central difference along qdot)."""
     model, states = arm_and_states
+    inertia_and_coriolis = getattr(model, terms)
     h = 1e-6
     for q, qdot, _, _ in states:
-        M_x_p = model.task_terms(q + h * qdot, qdot)[0]
-        M_x_m = model.task_terms(q - h * qdot, qdot)[0]
-        _, C_x, _ = model.task_terms(q, qdot)
-        _assert_skew((M_x_p - M_x_m) / (2.0 * h) - 2.0 * C_x, tol=1e-5, what='Mdot_x - 2 C_x')
-
-
-def test_joint_space_skew_symmetry(arm_and_states):
-    """Mdot - 2 C is skew-symmetric in joint space (Mdot by central difference along qdot)."""
-    model, states = arm_and_states
-    h = 1e-6
-    for q, qdot, _, _ in states:
-        M_p = model.joint_terms(q + h * qdot, qdot)[0]
-        M_m = model.joint_terms(q - h * qdot, qdot)[0]
-        _, C, _ = model.joint_terms(q, qdot)
-        _assert_skew((M_p - M_m) / (2.0 * h) - 2.0 * C, tol=1e-5, what='Mdot - 2 C')
+        M_p = inertia_and_coriolis(q + h * qdot, qdot)[0]
+        M_m = inertia_and_coriolis(q - h * qdot, qdot)[0]
+        _, C, _ = inertia_and_coriolis(q, qdot)
+        _assert_skew((M_p - M_m) / (2.0 * h) - 2.0 * C, tol=1e-5, what=f'Mdot - 2 C ({terms})')
 
 
 def test_task_regressor_is_linear_in_theta(arm_and_states):

@@ -32,12 +32,12 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'controller = hybrid_force_controller.controller_node:main',
+            'controller = hybrid_force_controller.ros.controller_node:main',
             'sim = sim_node.sim_node:main',
-            'paper = hybrid_force_controller.paper:main',
-            'bench = hybrid_force_controller.bench:main',
-            'demo = hybrid_force_controller.demo:main',
-            'report = hybrid_force_controller.report:main',
+            'paper = hybrid_force_controller.tools.paper:main',
+            'bench = hybrid_force_controller.ros.bench:main',
+            'demo = hybrid_force_controller.ros.demo:main',
+            'report = hybrid_force_controller.tools.report:main',
         ],
     },
 )

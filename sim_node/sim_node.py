@@ -27,13 +27,13 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hybrid_force_controller.environment import (ElasticSurface, SurfaceError,
+from hybrid_force_controller.core.environment import (ElasticSurface, SurfaceError,
                                                  sensor_wrench_from_f_W)
-from hybrid_force_controller.params import (MODEL_SCHEMA, ParameterValidationError,
+from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
                                             ParamSpec as _S)
-from hybrid_force_controller.robot_model import RobotModel
-from hybrid_force_controller.ros_params import ParameterBinder, declare_schema, run_node
-from hybrid_force_controller.simulator import ArmSimulator, Measurement
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.ros.parameters import ParameterBinder, declare_schema, run_node
+from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
 

@@ -252,7 +252,7 @@ class Rig:
                  '-r', f'/clock:={RAW}/clock']
         self.sim = Process('sim_node.sim_node', logs / 'sim.log', domain_id,
                            ['-p', 'lockstep:=true', *sim_args, *remap])
-        self.controller = Process('hybrid_force_controller.controller_node',
+        self.controller = Process('hybrid_force_controller.ros.controller_node',
                                   logs / 'controller.log', domain_id,
                                   ['-p', 'use_sim_time:=true', *controller_args])
         self.context = Context()

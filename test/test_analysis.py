@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hybrid_force_controller.analysis import (METRIC_KEYS, AnalysisError, RunLog, align,
+from hybrid_force_controller.tools.analysis import (METRIC_KEYS, AnalysisError, RunLog, align,
                                               compute_metrics, surface_axis)
 
 DT = 0.01

@@ -14,14 +14,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hybrid_force_controller import scenario as scenario_module
-from hybrid_force_controller.analysis import compute_metrics
-from hybrid_force_controller.arm7 import PANDA_JOINTS, PANDA_Q0, panda_model, panda_scenario, \
+from hybrid_force_controller.core import scenario as scenario_module
+from hybrid_force_controller.tools.analysis import RunLog, compute_metrics
+from hybrid_force_controller.core.arm7 import PANDA_JOINTS, PANDA_Q0, panda_model, panda_scenario, \
     panda_urdf_path
-from hybrid_force_controller.parameter_sets import project_physical
-from hybrid_force_controller.robot_model import ModelError, RobotModel, default_urdf_path
-from hybrid_force_controller.scenario import PAPER_Q0, ScenarioConfig, run_scenario
-from hybrid_force_controller.simulator import ArmSimulator
+from hybrid_force_controller.core.parameter_sets import project_physical
+from hybrid_force_controller.core.robot_model import ModelError, RobotModel, default_urdf_path
+from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
+from hybrid_force_controller.core.simulator import ArmSimulator
 from test_nodes_closed_loop import _stop as stop_process
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,7 +80,7 @@ def test_planar_redundant_arm_closed_loop(monkeypatch):
                          overrides={'ref_center': p0.tolist(), 'ref_amplitude': [0.1, 0.0, 0.0],
                                     'n': [0.0, -1.0, 0.0]})
     result, t, q, qdot = _run_recorded(monkeypatch, cfg, model)
-    met = compute_metrics(result.to_run_log(), t_start=5.0)
+    met = compute_metrics(RunLog.from_result(result), t_start=5.0)
     assert met['rms_position_error_m'] <= 1e-3, met
     assert met['rms_force_error_n'] <= 0.05, met
     assert met['contact_lost_s'] == 0.0 and result.in_contact[result.t >= 0.1].all(), met
@@ -106,7 +106,7 @@ def test_spatial_square_arm_closed_loop():
                          overrides={'ref_center': p0.tolist(), 'ref_amplitude': [0.1, 0.0, 0.0],
                                     'n': [0.0, 0.0, -1.0]})
     result = run_scenario(cfg, model)
-    met = compute_metrics(result.to_run_log(), t_start=5.0)
+    met = compute_metrics(RunLog.from_result(result), t_start=5.0)
     assert met['rms_position_error_m'] <= 1e-3, met
     assert met['rms_force_error_n'] <= 0.05, met
     assert met['contact_lost_s'] == 0.0 and result.in_contact[result.t >= 0.1].all(), met
@@ -133,7 +133,7 @@ def test_panda_closed_loop_with_mass_errors(panda):
     scale = np.asarray(cfg.theta_hat0_scale, dtype=float)
     assert scale.shape == (7,) and np.allclose(np.abs(scale - 1.0), 0.3)
     result = run_scenario(cfg, panda)
-    met = compute_metrics(result.to_run_log(), t_start=5.0)
+    met = compute_metrics(RunLog.from_result(result), t_start=5.0)
     assert met['rms_position_error_m'] <= 1e-3, met
     assert met['rms_force_error_n'] <= 0.05, met
     assert met['contact_lost_s'] == 0.0, met
@@ -224,7 +224,7 @@ def test_paper_scenario_with_payload_set():
         assert np.allclose(model.model.inertias[j].toDynamicParameters(),
                            plain.model.inertias[j].toDynamicParameters())
     result = run_scenario(ScenarioConfig(duration=20.0), model)
-    met = compute_metrics(result.to_run_log(), t_start=5.0)
+    met = compute_metrics(RunLog.from_result(result), t_start=5.0)
     assert met['rms_position_error_m'] <= 2e-4, met
     assert met['rms_force_error_n'] <= 0.02, met
     assert met['contact_lost_s'] == 0.0, met
@@ -301,7 +301,7 @@ def test_closed_loop_with_base_link_different_from_root():
                                  gravity_W=gravity_W)
     result = run_scenario(ScenarioConfig(q0=PAPER_Q0, duration=8.0, theta_hat0_scale=0.7),
                           model)
-    met = compute_metrics(result.to_run_log(), t_start=5.0)
+    met = compute_metrics(RunLog.from_result(result), t_start=5.0)
     assert met['rms_position_error_m'] <= 2e-4, met
     assert met['rms_force_error_n'] <= 0.02, met
     assert met['contact_lost_s'] == 0.0, met
@@ -325,7 +325,7 @@ def panda_node(tmp_path):
     from rclpy.executors import SingleThreadedExecutor
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(DOMAIN_ID),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    cmd = [sys.executable, '-m', 'hybrid_force_controller.controller_node', '--ros-args',
+    cmd = [sys.executable, '-m', 'hybrid_force_controller.ros.controller_node', '--ros-args',
            '-p', f'robot_description:={panda_urdf_path()}',
            '-p', 'end_effector_link:=panda_hand_tcp',
            '-p', f'joints:=[{",".join(PANDA_JOINTS)}]',

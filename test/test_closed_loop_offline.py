@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybrid_force_controller.analysis import compute_metrics
-from hybrid_force_controller.scenario import ScenarioConfig, ScenarioResult, run_scenario
+from hybrid_force_controller.tools.analysis import RunLog, compute_metrics
+from hybrid_force_controller.core.scenario import ScenarioConfig, ScenarioResult, run_scenario
 
 POS_TARGET_M = 2e-4
 FORCE_TARGET_N = 0.02
@@ -19,7 +19,7 @@ T_START = 5.0
 
 def run(**kw) -> tuple[ScenarioResult, dict]:
     res = run_scenario(ScenarioConfig(**kw))
-    return res, compute_metrics(res.to_run_log(), t_start=T_START)
+    return res, compute_metrics(RunLog.from_result(res), t_start=T_START)
 
 
 def assert_targets(m: dict) -> None:

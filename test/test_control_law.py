@@ -11,14 +11,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hybrid_force_controller.control_law import (ControlError, HybridForceController,
+from hybrid_force_controller.core.control_law import (ControlError, HybridForceController,
                                                  adapt_theta)
-from hybrid_force_controller.environment import ElasticSurface
-from hybrid_force_controller.params import ParameterValidationError, check_stability
-from hybrid_force_controller.reference import Reference, SineReference, blend_start
-from hybrid_force_controller.robot_model import RobotModel
-from hybrid_force_controller.scenario import PAPER_Q0, make_controller_params
-from hybrid_force_controller.simulator import ArmSimulator
+from hybrid_force_controller.core.environment import ElasticSurface
+from hybrid_force_controller.core.params import ParameterValidationError, check_stability
+from hybrid_force_controller.core.reference import Reference, SineReference, blend_start
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.scenario import PAPER_Q0, make_controller_params
+from hybrid_force_controller.core.simulator import ArmSimulator
 
 Q0 = np.array(PAPER_Q0)
 DT = 1e-3

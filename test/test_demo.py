@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from hybrid_force_controller.bag_io import RECORD_TOPICS
+from hybrid_force_controller.tools.bag_io import RECORD_TOPICS
 
 REPO = Path(__file__).resolve().parents[1]
 DURATION_S = 6.0
@@ -22,7 +22,7 @@ def demo_run(tmp_path_factory) -> Path:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=DEMO_DOMAIN_ID,
                PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
-    proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.demo',
+    proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.ros.demo',
                            '--duration', str(DURATION_S), '--out', str(out)],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]

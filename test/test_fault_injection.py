@@ -28,8 +28,8 @@ from geometry_msgs.msg import WrenchStamped  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from fault_harness import Rig, set_stamp, stamp_s  # noqa: E402
-from hybrid_force_controller.environment import sensor_wrench_from_f_W  # noqa: E402
-from hybrid_force_controller.robot_model import RobotModel  # noqa: E402
+from hybrid_force_controller.core.environment import sensor_wrench_from_f_W  # noqa: E402
+from hybrid_force_controller.core.robot_model import RobotModel  # noqa: E402
 
 N_W = np.array([0.0, -1.0, 0.0])      # config/params.yaml: contact normal, into the surface
 LIMITS = np.array([100.0, 100.0])     # URDF effort limits of the bundled arm, N m

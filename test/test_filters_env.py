@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from hybrid_force_controller.environment import (ElasticSurface, SurfaceError,
+from hybrid_force_controller.core.environment import (ElasticSurface, SurfaceError,
                                                  f_W_from_sensor_wrench, sensor_wrench_from_f_W)
-from hybrid_force_controller.filters import LowPassFilter
-from hybrid_force_controller.reference import Reference, SineReference, blend_start
+from hybrid_force_controller.core.filters import LowPassFilter
+from hybrid_force_controller.core.reference import Reference, SineReference, blend_start
 
 DT = 1e-3
 

@@ -1,4 +1,4 @@
-"""Oracle tests of ``hybrid_force_controller.robot_model`` (pinocchio path).
+"""Oracle tests of ``hybrid_force_controller.core.robot_model`` (pinocchio path).
 
 * The bundled 2-link arm against the paper's closed form, eqs. (30)-(37) of [1] with the
   errata fixed (``test/closed_form_2link.py``), at random non-singular states.
@@ -22,7 +22,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hybrid_force_controller.robot_model import ModelError, RobotModel, default_urdf_path
+from hybrid_force_controller.core.robot_model import ModelError, RobotModel, default_urdf_path
 
 TEST_DIR = Path(__file__).resolve().parent
 SPATIAL_URDF = TEST_DIR / 'three_link_spatial.urdf'

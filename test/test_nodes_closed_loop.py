@@ -109,7 +109,7 @@ def loop(tmp_path_factory):
     executor.add_node(listener)
     try:
         procs.append(_start('sim_node.sim_node', logs / 'sim.log', 'lockstep:=true'))
-        procs.append(_start('hybrid_force_controller.controller_node', logs / 'controller.log',
+        procs.append(_start('hybrid_force_controller.ros.controller_node', logs / 'controller.log',
                             'use_sim_time:=true'))
 
         def spin_until(condition, what):

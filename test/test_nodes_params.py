@@ -22,7 +22,7 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 
-from hybrid_force_controller.controller_node import ControllerNode  # noqa: E402
+from hybrid_force_controller.ros.controller_node import ControllerNode  # noqa: E402
 from sim_node.sim_node import SimNode  # noqa: E402
 
 TIMEOUT = 30.0

@@ -7,11 +7,11 @@ import re
 import numpy as np
 import pytest
 
-from hybrid_force_controller.params import (CONTROLLER_SCHEMA, ControllerParams,
+from hybrid_force_controller.core.params import (CONTROLLER_SCHEMA, ControllerParams,
                                             ParameterValidationError,
                                             build_controller_params, schema_defaults)
-from hybrid_force_controller.robot_model import RobotModel
-from hybrid_force_controller.scenario import make_controller_params
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.scenario import make_controller_params
 
 DOUBLES = [s.name for s in CONTROLLER_SCHEMA if s.kind == 'double']
 

@@ -16,9 +16,9 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 
-from hybrid_force_controller.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,  # noqa: E402
+from hybrid_force_controller.tools.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,  # noqa: E402
                                             TOPIC_WRENCH, TOPIC_X, TYPESTORE)
-from hybrid_force_controller.recorder_node import BagRecorder, message_class  # noqa: E402
+from hybrid_force_controller.ros.recorder_node import BagRecorder, message_class  # noqa: E402
 
 DOMAIN_ID = 63
 TIMEOUT_S = 20.0

@@ -13,9 +13,9 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from hybrid_force_controller import report
-from hybrid_force_controller.analysis import compute_metrics
-from hybrid_force_controller.bag_io import (BAG_VERSION, RECORD_TOPICS, REQUIRED_TOPICS,
+from hybrid_force_controller.tools import report
+from hybrid_force_controller.tools.analysis import compute_metrics
+from hybrid_force_controller.tools.bag_io import (BAG_VERSION, RECORD_TOPICS, REQUIRED_TOPICS,
                                             TOPIC_CONTACT_WRENCH, TOPIC_THETA_HAT,
                                             TOPIC_WRENCH, TOPIC_WRENCH_DESIRED, TOPIC_X,
                                             TOPIC_X_DESIRED, TYPESTORE, BagError, BagWriter,
@@ -244,7 +244,7 @@ def test_bad_bags_fail_with_a_message(tmp_path, capsys, make_bag, message):
 
 def test_report_as_a_subprocess(good_bag, tmp_path):
     env = dict(os.environ, MPLBACKEND='Agg')
-    cmd = [sys.executable, '-m', 'hybrid_force_controller.report']
+    cmd = [sys.executable, '-m', 'hybrid_force_controller.tools.report']
     ok = subprocess.run([*cmd, str(good_bag), '--out', str(tmp_path / 'o')], cwd=REPO_ROOT,
                         env=env, capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0, ok.stderr

@@ -12,12 +12,12 @@ import math
 import numpy as np
 import pytest
 
-from hybrid_force_controller.environment import ElasticSurface, sensor_wrench_from_f_W
-from hybrid_force_controller.reference import SineReference
-from hybrid_force_controller.robot_model import RobotModel
-from hybrid_force_controller.runtime import ControllerRuntime, InputError
-from hybrid_force_controller.scenario import PAPER_Q0, make_controller_params
-from hybrid_force_controller.simulator import ArmSimulator
+from hybrid_force_controller.core.environment import ElasticSurface, sensor_wrench_from_f_W
+from hybrid_force_controller.core.reference import SineReference
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.runtime import ControllerRuntime, InputError
+from hybrid_force_controller.core.scenario import PAPER_Q0, make_controller_params
+from hybrid_force_controller.core.simulator import ArmSimulator
 
 DT = 1e-3
 Q0 = np.array(PAPER_Q0)

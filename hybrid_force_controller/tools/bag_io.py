@@ -1,7 +1,7 @@
 """Read and write the controller's rosbag2 recordings with ``rosbags`` (no rclpy).
 
 :func:`load_run` turns a recording (MCAP or sqlite3) into an
-:class:`~hybrid_force_controller.analysis.RunLog`; :class:`BagWriter` writes an MCAP bag
+:class:`~hybrid_force_controller.tools.analysis.RunLog`; :class:`BagWriter` writes an MCAP bag
 with rosbag2 metadata version 8, the format ROS 2 Jazzy's rosbag2 writes and reads
 (``ros2 bag info`` / ``ros2 bag play``). Version 9 (Kilted and later) stores the QoS
 profiles as a YAML list, which Jazzy's reader rejects.

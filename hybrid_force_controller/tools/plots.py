@@ -1,4 +1,4 @@
-"""Figures 3-5 of the paper from a :class:`~hybrid_force_controller.analysis.RunLog`.
+"""Figures 3-5 of the paper from a :class:`~hybrid_force_controller.tools.analysis.RunLog`.
 
 Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
 """

@@ -6,7 +6,7 @@ from typing import Mapping
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
-from .runtime import TickOutput
+from ..core.runtime import TickOutput
 
 __all__ = ['controller_status']
 

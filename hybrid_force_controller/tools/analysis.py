@@ -87,6 +87,14 @@ class RunLog:
     theta_true: np.ndarray | None = None
     f_true_W: np.ndarray | None = None
 
+    @classmethod
+    def from_result(cls, result: Any) -> 'RunLog':
+        """The log of an offline run (:class:`~hybrid_force_controller.core.scenario.ScenarioResult`)."""
+        return cls(t=result.t, x_W=result.x_W, x_d_W=result.x_d_W, f_W=result.f_W,
+                   f_d_W=result.f_d_W, n_W=result.n_W, theta_hat=result.theta_hat,
+                   theta_names=result.theta_names, in_contact=result.in_contact,
+                   theta_true=result.theta_true, f_true_W=result.f_true_W)
+
     def __post_init__(self) -> None:
         """Copy every field to a read-only float/bool array; validate shapes and values."""
         for name, value in _validated_fields(self).items():

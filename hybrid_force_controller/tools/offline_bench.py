@@ -1,28 +1,23 @@
-"""``bench`` executable: speed figures as JSON (never asserted in tests).
+"""Offline speed figures of the ``bench`` executable (never asserted in tests).
 
 Offline figures (always):
 - ``controller_step_us_median`` / ``controller_step_us_p99``: one control-law plus
   adaptation step (eqs. 5-11, 26) of the 2-DOF arm along the paper trajectory;
 - ``controller_step_7dof_us_median`` / ``_p99``: the same for the 7-DOF Panda (redundant);
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline.
-With ``--ros``: the controller and sim nodes in real time at 1 kHz (see ros_bench.py).
+``bench --ros`` adds the ROS loop in real time (ros/bench.py).
 """
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 import time
-from typing import Sequence
-
 import numpy as np
 
-from .control_law import HybridForceController
-from .environment import ElasticSurface
-from .reference import SineReference, blend_start
-from .robot_model import RobotModel
-from .scenario import PAPER_Q0, ScenarioConfig, make_controller_params, run_scenario
-from .simulator import ArmSimulator
+from ..core.control_law import HybridForceController
+from ..core.environment import ElasticSurface
+from ..core.reference import SineReference, blend_start
+from ..core.robot_model import RobotModel
+from ..core.scenario import PAPER_Q0, ScenarioConfig, make_controller_params, run_scenario
+from ..core.simulator import ArmSimulator
 
 
 def controller_step_times_us(steps: int = 20000) -> np.ndarray:
@@ -46,7 +41,7 @@ def controller_step_times_us(steps: int = 20000) -> np.ndarray:
 
 def panda_step_times_us(steps: int = 5000) -> np.ndarray:
     """Wall time of each controller step of the 7-DOF Panda in its closed loop, us."""
-    from .arm7 import PANDA_Q0, panda_model, panda_scenario
+    from ..core.arm7 import PANDA_Q0, panda_model, panda_scenario
     model = panda_model()
     cfg = panda_scenario(model)
     params = make_controller_params(model, dict(cfg.overrides))
@@ -77,21 +72,3 @@ def offline_figures() -> dict[str, float]:
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2)}
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Print the benchmark figures as one JSON object."""
-    ap = argparse.ArgumentParser(prog='bench', description=__doc__.splitlines()[0])
-    ap.add_argument('--ros', action='store_true', help='also run the 1 kHz ROS loop')
-    ap.add_argument('--ros-duration', type=float, default=10.0, help='ROS loop run time, s')
-    args = ap.parse_args(argv)
-    figures = offline_figures()
-    if args.ros:
-        from .ros_bench import ros_loop_figures
-        figures.update(ros_loop_figures(args.ros_duration))
-    print(json.dumps(figures, indent=2))
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -1,18 +1,22 @@
-"""The 1 kHz ROS loop in real time: sim and controller processes over DDS (for ``bench --ros``).
+"""``bench`` executable: speed figures as JSON; ``--ros`` adds the 1 kHz ROS loop in real time.
 
 Reports the controller's own loop timing from its ``/diagnostics`` (timer period p50/p99,
 compute p50/p99, achieved rate) and the command inter-arrival times seen by a subscriber.
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import subprocess
 import sys
 import time
+from typing import Sequence
 
 import numpy as np
 
-from .demo import find_config
+from ..tools.offline_bench import offline_figures
+from .launch import find_config
 
 
 def _diag_values(msg) -> dict[str, str]:
@@ -31,7 +35,7 @@ def ros_loop_figures(duration_s: float = 10.0) -> dict[str, float]:
     common = ['--ros-args', '--params-file', str(find_config())]
     procs = [subprocess.Popen([sys.executable, '-m', mod, *common], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-             for mod in ('sim_node.sim_node', 'hybrid_force_controller.controller_node')]
+             for mod in ('sim_node.sim_node', 'hybrid_force_controller.ros.controller_node')]
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']))
     node = rclpy.create_node('ros_bench', context=context)
@@ -62,3 +66,20 @@ def ros_loop_figures(duration_s: float = 10.0) -> dict[str, float]:
     return {**{f'ros_loop_{k}': round(v, 4) for k, v in pick.items()},
             'ros_commands_received_hz': round(1e3 / float(np.mean(gaps)), 1),
             'ros_command_gap_p99_ms': round(float(np.percentile(gaps, 99)), 4)}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the benchmark figures as one JSON object."""
+    ap = argparse.ArgumentParser(prog='bench', description=__doc__.splitlines()[0])
+    ap.add_argument('--ros', action='store_true', help='also run the 1 kHz ROS loop')
+    ap.add_argument('--ros-duration', type=float, default=10.0, help='ROS loop run time, s')
+    args = ap.parse_args(argv)
+    figures = offline_figures()
+    if args.ros:
+        figures.update(ros_loop_figures(args.ros_duration))
+    print(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

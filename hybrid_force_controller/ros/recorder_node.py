@@ -13,7 +13,7 @@ from typing import Sequence
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from .bag_io import RECORD_TOPICS, BagWriter
+from ..tools.bag_io import RECORD_TOPICS, BagWriter
 
 __all__ = ['BagRecorder', 'message_class']
 
@@ -32,7 +32,7 @@ class BagRecorder(Node):
     bag_path : str or pathlib.Path
         Bag directory to create (must not exist).
     topics : sequence of (str, str)
-        ``(topic, msgtype)`` pairs; default :data:`~hybrid_force_controller.bag_io.RECORD_TOPICS`.
+        ``(topic, msgtype)`` pairs; default :data:`~hybrid_force_controller.tools.bag_io.RECORD_TOPICS`.
     node_name : str
         Node name.
     depth : int

@@ -12,7 +12,6 @@ from typing import Any
 
 import numpy as np
 
-from .analysis import RunLog
 from .control_law import HybridForceController
 from .environment import ElasticSurface
 from .filters import LowPassFilter
@@ -63,13 +62,6 @@ class ScenarioResult:
     n_W: np.ndarray
     theta_true: np.ndarray
     theta_names: tuple[str, ...]
-
-    def to_run_log(self) -> RunLog:
-        """The run as the analysis/plot input (:class:`~.analysis.RunLog`)."""
-        return RunLog(t=self.t, x_W=self.x_W, x_d_W=self.x_d_W, f_W=self.f_W,
-                      f_d_W=self.f_d_W, n_W=self.n_W, theta_hat=self.theta_hat,
-                      theta_names=self.theta_names, in_contact=self.in_contact,
-                      theta_true=self.theta_true, f_true_W=self.f_true_W)
 
 
 def make_controller_params(model: RobotModel, overrides: dict[str, Any]) -> ControllerParams:

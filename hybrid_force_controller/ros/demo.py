@@ -20,23 +20,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-PKG = 'hybrid_force_controller'
-
-
-def find_config(name: str = 'params.yaml') -> Path:
-    """config/NAME from the source tree, the pip prefix or the ament index."""
-    here = Path(__file__).resolve().parent
-    candidates = [here.parent / 'config' / name,
-                  Path(sys.prefix) / 'share' / PKG / 'config' / name]
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        candidates.append(Path(get_package_share_directory(PKG)) / 'config' / name)
-    except Exception:  # noqa: BLE001 - not in an ament index: other candidates remain
-        pass
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise FileNotFoundError(f'config/{name} not found in {[str(c) for c in candidates]}')
+from .launch import PKG, find_config
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -54,7 +38,7 @@ def _start_nodes(params: Path, lockstep: bool, env: dict[str, str],
     common = ['--ros-args', '--params-file', str(params)]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
            '-p', f'lockstep:={str(lockstep).lower()}']
-    ctrl = [sys.executable, '-m', f'{PKG}.controller_node', *common,
+    ctrl = [sys.executable, '-m', f'{PKG}.ros.controller_node', *common,
             '-p', f'use_sim_time:={str(lockstep).lower()}']
     procs = []
     for name, cmd in (('sim', sim), ('controller', ctrl)):
@@ -117,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             p.terminate()
         for p in procs:
             p.wait(timeout=30)
-    from .report import main as report_main
+    from ..tools.report import main as report_main
     print('report:')
     code = report_main([str(bag), '--out', str(report_dir)])
     if code == 0:

@@ -22,11 +22,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 
 from .diagnostics import controller_status
-from .loop_stats import LoopStats
-from .params import CONTROLLER_SCHEMA, MODEL_SCHEMA
-from .robot_model import RobotModel
-from .ros_params import ParameterBinder, declare_schema, run_node
-from .runtime import ControllerRuntime, InputError, TickOutput, params_for_model
+from ..core.loop_stats import LoopStats
+from ..core.params import CONTROLLER_SCHEMA, MODEL_SCHEMA
+from ..core.robot_model import RobotModel
+from .parameters import ParameterBinder, declare_schema, run_node
+from ..core.runtime import ControllerRuntime, InputError, TickOutput, params_for_model
 
 __all__ = ['ControllerNode', 'main']
 

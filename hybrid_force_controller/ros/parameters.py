@@ -20,7 +20,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from .params import ParameterValidationError, ParamSpec
+from ..core.params import ParameterValidationError, ParamSpec
 
 __all__ = ['ParameterBinder', 'declare_schema', 'descriptor_for', 'normalise_value']
 

@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from .analysis import compute_metrics
-from .scenario import ScenarioConfig, run_scenario
+from .analysis import RunLog, compute_metrics
+from ..core.scenario import ScenarioConfig, run_scenario
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -43,7 +43,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                          noise_sigma=args.noise_sigma, seed=args.seed,
                          theta_hat0_scale=args.theta_scale)
     t0 = time.perf_counter()
-    log = run_scenario(cfg).to_run_log()
+    log = RunLog.from_result(run_scenario(cfg))
     wall = time.perf_counter() - t0
     from .plots import write_figures  # matplotlib only when plotting
     args.out.mkdir(parents=True, exist_ok=True)

@@ -3,7 +3,7 @@
 The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
 converts the result back. This module owns the latest inputs, their staleness, the force
 filter, the reference, the safe mode and the counters; the control law itself is
-:class:`~hybrid_force_controller.control_law.HybridForceController`. Times are seconds on
+:class:`~hybrid_force_controller.core.control_law.HybridForceController`. Times are seconds on
 the caller's clock (node time, so ``use_sim_time`` works); nothing here reads a clock.
 
 Safe mode (inputs older than ``state_timeout``) holds the arm: ``tau = g_hat(q) + J^T f``

@@ -1,0 +1,1 @@
+"""Pure core: numpy and pinocchio only (no rclpy, no tools)."""

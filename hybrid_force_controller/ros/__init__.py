@@ -1,0 +1,1 @@
+"""rclpy adapters: nodes, parameter binding, diagnostics, recorder."""

@@ -1,0 +1,1 @@
+"""Offline tools: paper, bench, demo, report, analysis, plots, bag I/O."""

@@ -7,3 +7,5 @@ import os
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
+
+import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any test module loads)

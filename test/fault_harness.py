@@ -16,10 +16,7 @@ assertion is about wall time).
 """
 from __future__ import annotations
 
-import os
 import signal
-import subprocess
-import sys
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -39,8 +36,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-ROOT = Path(__file__).resolve().parents[1]
-PARAMS_FILE = ROOT / 'config' / 'params.yaml'
+from ros_helpers import NodeProcess, ROOT, parse_diagnostics
+
 RAW = '/fault_injection/raw'
 WALL_TIMEOUT = 90.0  # only against hangs
 INJECTED = 'fault_injection'  # layout label of commands this process publishes itself
@@ -54,79 +51,6 @@ def stamp_s(stamp) -> float:
 def set_stamp(msg, t: float):
     msg.header.stamp.sec, msg.header.stamp.nanosec = int(t), int(round((t - int(t)) * 1e9))
     return msg
-
-
-class Process:
-    """One node process; its output goes to a log file that tests can search."""
-
-    def __init__(self, module: str, log_path: Path, domain_id: int, args: list[str]) -> None:
-        self.module, self.log_path, self.domain_id, self.args = module, log_path, domain_id, args
-        self.proc: subprocess.Popen | None = None
-        self.starts = 0
-
-    def start(self) -> None:
-        env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(self.domain_id),
-                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1',
-                   RCUTILS_LOGGING_BUFFERED_STREAM='0')
-        cmd = [sys.executable, '-m', self.module, '--ros-args', '--params-file',
-               str(PARAMS_FILE), *self.args]
-        self.starts += 1
-        with open(self.log_path, 'a') as log:
-            log.write(f'\n===== start {self.starts}: {" ".join(cmd)}\n')
-            log.flush()
-            self.proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log,
-                                         stderr=subprocess.STDOUT)
-
-    @property
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
-    def signal(self, sig: int) -> None:
-        if self.alive:
-            self.proc.send_signal(sig)
-
-    def kill(self) -> None:
-        """SIGKILL (a crash) and reap."""
-        if self.alive:
-            self.proc.kill()
-        if self.proc is not None:
-            self.proc.wait(30)
-
-    def stop(self) -> None:
-        """SIGINT (clean shutdown); SIGKILL if it does not exit."""
-        if self.alive:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.kill()
-
-    def log_size(self) -> int:
-        return self.log_path.stat().st_size if self.log_path.exists() else 0
-
-    def log_since(self, offset: int) -> str:
-        with open(self.log_path, errors='replace') as f:
-            f.seek(offset)
-            return f.read()
-
-
-def parse_diagnostics(msg: DiagnosticArray) -> dict[str, Any]:
-    """The controller's status as a dict: counters as int, in_contact as bool, level."""
-    status = msg.status[0]
-    values: dict[str, Any] = {'level': int.from_bytes(status.level, 'little')
-                              if isinstance(status.level, bytes) else int(status.level),
-                              'message': status.message}
-    for kv in status.values:
-        v: Any = kv.value
-        if v in ('True', 'False'):
-            v = v == 'True'
-        else:
-            try:
-                v = int(v)
-            except ValueError:
-                pass
-        values[kv.key] = v
-    return values
 
 
 class Proxy(Node):
@@ -250,9 +174,9 @@ class Rig:
         remap = ['-r', f'/joint_states:={RAW}/joint_states',
                  '-r', f'/force_torque_sensor_broadcaster/wrench:={RAW}/wrench',
                  '-r', f'/clock:={RAW}/clock']
-        self.sim = Process('sim_node.sim_node', logs / 'sim.log', domain_id,
-                           ['-p', 'lockstep:=true', *sim_args, *remap])
-        self.controller = Process('hybrid_force_controller.ros.controller_node',
+        self.sim = NodeProcess('sim_node.sim_node', logs / 'sim.log', domain_id,
+                               ['-p', 'lockstep:=true', *sim_args, *remap])
+        self.controller = NodeProcess('hybrid_force_controller.ros.controller_node',
                                   logs / 'controller.log', domain_id,
                                   ['-p', 'use_sim_time:=true', *controller_args])
         self.context = Context()

@@ -1,13 +1,8 @@
 """Any arm from a URDF: redundant, spatial and 7-DOF arms, parameter sets, bad chains.
 
 Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds); the last
-test starts the controller node for the Panda as a subprocess on ROS domain 93.
+test starts the controller node for the Panda as a subprocess in its own ROS domain.
 """
-import os
-import subprocess
-import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,12 +17,11 @@ from hybrid_force_controller.core.parameter_sets import project_physical
 from hybrid_force_controller.core.robot_model import ModelError, RobotModel, default_urdf_path
 from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
 from hybrid_force_controller.core.simulator import ArmSimulator
-from test_nodes_closed_loop import _stop as stop_process
+from ros_helpers import NodeProcess, Spun, domain_id, wait_for, wait_future
 
-ROOT = Path(__file__).resolve().parents[1]
 PLANAR3 = Path(__file__).resolve().parent / 'three_link_planar.urdf'
 SPATIAL3 = Path(__file__).resolve().parent / 'three_link_spatial.urdf'
-DOMAIN_ID = 93
+DOMAIN_ID = domain_id('any_arm')
 Z_UP = (0.0, 0.0, -9.81)
 
 
@@ -308,62 +302,34 @@ def test_closed_loop_with_base_link_different_from_root():
 
 
 # --------------------------------------------------------------------------- 6. ROS node
-TIMEOUT = 30.0
-
-
-def _wait(future):
-    done = threading.Event()
-    future.add_done_callback(lambda _: done.set())
-    assert done.wait(TIMEOUT), 'no answer from the parameter service'
-    return future.result()
-
-
 @pytest.fixture
 def panda_node(tmp_path):
-    rclpy = pytest.importorskip('rclpy')
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(DOMAIN_ID),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    cmd = [sys.executable, '-m', 'hybrid_force_controller.ros.controller_node', '--ros-args',
-           '-p', f'robot_description:={panda_urdf_path()}',
-           '-p', 'end_effector_link:=panda_hand_tcp',
-           '-p', f'joints:=[{",".join(PANDA_JOINTS)}]',
-           '-p', 'gravity:=[0.0,0.0,-9.81]', '-p', 'n:=[0.0,0.0,-1.0]']
-    log_path = tmp_path / 'controller.log'
-    log = open(log_path, 'w')
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    tester = rclpy.create_node('any_arm_tester', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(tester)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+    args = ['-p', f'robot_description:={panda_urdf_path()}',
+            '-p', 'end_effector_link:=panda_hand_tcp',
+            '-p', f'joints:=[{",".join(PANDA_JOINTS)}]',
+            '-p', 'gravity:=[0.0,0.0,-9.81]', '-p', 'n:=[0.0,0.0,-1.0]']
+    proc = NodeProcess('hybrid_force_controller.ros.controller_node', tmp_path / 'controller.log',
+                       DOMAIN_ID, args, params_file=None)
+    spun = Spun(DOMAIN_ID)
     try:
-        yield proc, tester, log_path
+        tester = spun.node('any_arm_tester')
+        proc.start()
+        yield proc, tester
     finally:
-        stop_process(proc)
-        log.close()
-        executor.shutdown(timeout_sec=TIMEOUT)
-        tester.destroy_node()
-        rclpy.try_shutdown(context=context)
-        thread.join(TIMEOUT)
+        proc.stop()
+        spun.close()
 
 
 def test_controller_node_starts_for_the_panda(panda_node):
     from rclpy.parameter import parameter_value_to_python
     from rclpy.parameter_client import AsyncParameterClient
-    proc, tester, log_path = panda_node
-    deadline = time.monotonic() + TIMEOUT
-    while 'hybrid_force_controller' not in tester.get_node_names():
-        assert proc.poll() is None, f'node exited ({proc.returncode}):\n{log_path.read_text()}'
-        assert time.monotonic() < deadline, f'node not in the graph:\n{log_path.read_text()}'
-        time.sleep(0.1)
+    proc, tester = panda_node
+    wait_for(lambda: 'hybrid_force_controller' in tester.get_node_names(),
+             'the node in the graph', alive=[proc])
     client = AsyncParameterClient(tester, 'hybrid_force_controller')
-    assert client.wait_for_services(timeout_sec=TIMEOUT), log_path.read_text()
+    assert client.wait_for_services(timeout_sec=60.0), proc.tail()
     names = ['joints', 'end_effector_link', 'robot_description', 'gravity', 'n']
-    values = _wait(client.get_parameters(names)).values
+    values = wait_future(client.get_parameters(names)).values
     got = {k: parameter_value_to_python(v) for k, v in zip(names, values)}
     assert list(got['joints']) == list(PANDA_JOINTS)
     assert got['end_effector_link'] == 'panda_hand_tcp'
@@ -382,16 +348,15 @@ def test_controller_node_starts_for_the_panda(panda_node):
                                lambda m: efforts.append(list(m.data)), 10)
     pub_js = tester.create_publisher(JointState, '/joint_states', 10)
     pub_f = tester.create_publisher(WrenchStamped, '/force_torque_sensor_broadcaster/wrench', 10)
-    deadline = time.monotonic() + TIMEOUT
-    while not efforts:
-        assert proc.poll() is None, f'node exited ({proc.returncode}):\n{log_path.read_text()}'
-        assert time.monotonic() < deadline, f'no effort published:\n{log_path.read_text()}'
+
+    def publish_inputs_until_an_effort() -> bool:
         pub_js.publish(JointState(name=list(PANDA_JOINTS), position=list(PANDA_Q0),
                                   velocity=[0.0] * 7))
         wrench = WrenchStamped()
         wrench.header.frame_id = 'panda_hand_tcp'
         pub_f.publish(wrench)
-        time.sleep(0.05)  # publishing interval of the wait-for-condition loop
+        return bool(efforts)
+    wait_for(publish_inputs_until_an_effort, 'a computed effort', alive=[proc], poll=0.05)
     assert len(efforts[-1]) == 7 and np.all(np.isfinite(efforts[-1]))
     assert np.all(np.abs(efforts[-1]) <= np.array([87, 87, 87, 87, 12, 12, 12]) + 1e-9)
-    assert proc.poll() is None
+    assert proc.alive

@@ -9,15 +9,16 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from ros_helpers import NodeProcess, Spun, domain_id, wait_for
+
 REPO = Path(__file__).resolve().parents[1]
 PKG = 'hybrid_force_controller'
 EXECUTABLES = ('controller', 'sim', 'paper', 'bench', 'demo', 'report')
-DOMAIN_ID = '91'
+DOMAIN_ID = str(domain_id('colcon_build'))
 
 
 @pytest.fixture(scope='module')
@@ -81,27 +82,23 @@ def test_paper_runs_from_install(install, tmp_path):
                for f in ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png'))
 
 
-def test_nodes_start_from_install(install):
+def test_nodes_start_from_install(install, tmp_path):
     """controller and sim started through their installed paths join the ROS graph."""
-    procs = [subprocess.Popen([_resolve(install, exe)], env=_env(install), cwd='/',
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-             for exe in ('sim', 'controller')]
-    import rclpy
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(DOMAIN_ID))
-    node = rclpy.create_node('build_probe', context=context)
+    domain = int(DOMAIN_ID)
+    procs = []
+    for exe in ('sim', 'controller'):
+        proc = NodeProcess(exe, tmp_path / f'{exe}.log', domain, params_file=None,
+                           env=_env(install), cwd=Path('/'))
+        proc.command_override = [_resolve(install, exe)]
+        procs.append(proc)
+    spun = Spun(domain)
     try:
-        deadline = time.monotonic() + 60.0
-        names: set[str] = set()
-        while time.monotonic() < deadline and not {'sim', PKG} <= names:
-            names = set(node.get_node_names())
-            assert all(p.poll() is None for p in procs), [p.stderr.read() for p in procs]
-            time.sleep(0.1)  # polling interval of the wait-for-condition loop
-        assert {'sim', PKG} <= names
+        probe = spun.node('build_probe')
+        for proc in procs:
+            proc.start()
+        wait_for(lambda: {'sim', PKG} <= set(probe.get_node_names()), 'both nodes in the graph',
+                 timeout=60.0, alive=procs)
     finally:
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.wait(timeout=20)
+        for proc in procs:
+            proc.stop()
+        spun.close()

@@ -9,11 +9,12 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from hybrid_force_controller.tools.bag_io import RECORD_TOPICS
+from ros_helpers import domain_id
 
 REPO = Path(__file__).resolve().parents[1]
 DURATION_S = 6.0
 RATE_HZ = 1000.0
-DEMO_DOMAIN_ID = '92'
+DEMO_DOMAIN_ID = str(domain_id('demo'))
 
 
 @pytest.fixture(scope='module')

@@ -15,12 +15,7 @@ Lockstep makes the loop independent of the machine's load; every bound is on sim
 Seeds are fixed (the sim's noise is off; nothing here is random).
 """
 import math
-import os
 import signal
-
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ['ROS_DOMAIN_ID'] = '81'
-DOMAIN_ID = 81
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
@@ -28,6 +23,7 @@ from geometry_msgs.msg import WrenchStamped  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 from fault_harness import Rig, set_stamp, stamp_s  # noqa: E402
+from ros_helpers import domain_id  # noqa: E402
 from hybrid_force_controller.core.environment import sensor_wrench_from_f_W  # noqa: E402
 from hybrid_force_controller.core.robot_model import RobotModel  # noqa: E402
 
@@ -41,7 +37,7 @@ ARM_REACH = 2.0                       # l1 + l2, m: bounds |J^T| (N m per N)
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    rig = Rig(tmp_path_factory.mktemp('fault_injection'), DOMAIN_ID, N_W, LIMITS,
+    rig = Rig(tmp_path_factory.mktemp('fault_injection'), domain_id('fault_injection'), N_W, LIMITS,
               sim_args=['-p', f'command_timeout:={COMMAND_TIMEOUT}'], controller_args=[])
     try:
         rig.start()

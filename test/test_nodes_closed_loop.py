@@ -5,31 +5,17 @@ listens to ``/sim/contact_wrench`` (true contact force), ``/hybrid_force_control
 ``/hybrid_force_controller/x_desired`` and ``/clock`` and changes ``f_d`` through the
 parameter service. Lockstep makes the result independent of the machine's load.
 """
-import os
-import signal
-import subprocess
-import sys
-import time
-from pathlib import Path
+import numpy as np
+import pytest
+from geometry_msgs.msg import PointStamped, WrenchStamped
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock
 
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ['ROS_DOMAIN_ID'] = '74'
-DOMAIN_ID = 74
+from ros_helpers import NodeProcess, Spun, domain_id, wait_for, wait_future
 
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-import rclpy  # noqa: E402
-from geometry_msgs.msg import PointStamped, WrenchStamped  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
-from rclpy.qos import QoSProfile  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
 WALL_TIMEOUT = 300.0
 N_W = np.array([0.0, -1.0, 0.0])  # config/params.yaml
 P_TANGENT = np.eye(3) - np.outer(N_W, N_W)
@@ -66,72 +52,39 @@ class _Listener(Node):
         store[_t(msg.header.stamp)] = np.array([msg.point.x, msg.point.y, msg.point.z])
 
     def force_error_rms(self, t0, t1, f_d):
-        e = [N_W @ f - f_d for t, f in self.force.items() if t0 <= t <= t1]
+        e = [N_W @ f - f_d for t, f in list(self.force.items()) if t0 <= t <= t1]
         assert len(e) > 0.5 * (t1 - t0) * 1000, f'only {len(e)} force samples in [{t0}, {t1}]'
         return float(np.sqrt(np.mean(np.square(e))))
 
     def tangential_error_rms(self, t0, t1):
-        e = [P_TANGENT @ (x - self.x_d[t]) for t, x in self.x.items()
-             if t0 <= t <= t1 and t in self.x_d]
+        x_d = dict(list(self.x_d.items()))  # snapshots: the executor thread adds samples
+        e = [P_TANGENT @ (x - x_d[t]) for t, x in list(self.x.items())
+             if t0 <= t <= t1 and t in x_d]
         assert len(e) > 0.5 * (t1 - t0) * 1000, f'only {len(e)} position pairs in [{t0}, {t1}]'
         return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
-
-
-def _start(module, log_path, *overrides):
-    env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(DOMAIN_ID),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    cmd = [sys.executable, '-m', module, '--ros-args',
-           '--params-file', str(ROOT / 'config' / 'params.yaml')]
-    for override in overrides:
-        cmd += ['-p', override]
-    log = open(log_path, 'w')
-    return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT), log
-
-
-def _stop(proc):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
 
 
 @pytest.fixture(scope='module')
 def loop(tmp_path_factory):
     logs = tmp_path_factory.mktemp('closed_loop')
-    procs = []
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    listener = _Listener(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(listener)
+    domain = domain_id('nodes_closed_loop')
+    procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain, ['-p', 'lockstep:=true']),
+             NodeProcess('hybrid_force_controller.ros.controller_node', logs / 'controller.log',
+                         domain, ['-p', 'use_sim_time:=true'])]
+    spun = Spun(domain)
+    listener = spun.add(_Listener(spun.context))
     try:
-        procs.append(_start('sim_node.sim_node', logs / 'sim.log', 'lockstep:=true'))
-        procs.append(_start('hybrid_force_controller.ros.controller_node', logs / 'controller.log',
-                            'use_sim_time:=true'))
+        for proc in procs:
+            proc.start()
 
         def spin_until(condition, what):
-            deadline = time.monotonic() + WALL_TIMEOUT
-            while not condition():
-                for proc, log in procs:
-                    if proc.poll() is not None:
-                        pytest.fail(f'{proc.args[2]} exited with {proc.returncode}:\n'
-                                    + Path(log.name).read_text()[-3000:])
-                if time.monotonic() > deadline:
-                    pytest.fail(f'timed out waiting for {what}; sim time {listener.clock:.3f} s\n'
-                                + '\n'.join(Path(log.name).read_text()[-2000:] for _, log in procs))
-                executor.spin_once(timeout_sec=0.1)
+            wait_for(condition, f'{what} (sim time {listener.clock:.3f} s)', WALL_TIMEOUT, procs)
 
         yield listener, spin_until
     finally:
-        for proc, log in procs:
-            _stop(proc)
-            log.close()
-        executor.shutdown()
-        listener.destroy_node()
-        rclpy.try_shutdown(context=context)
+        for proc in procs:
+            proc.stop()
+        spun.close()
 
 
 def test_tracks_position_and_force(loop):
@@ -146,9 +99,8 @@ def test_force_setpoint_change_through_parameter_service(loop):
     listener, spin_until = loop
     client = AsyncParameterClient(listener, 'hybrid_force_controller')
     spin_until(client.services_are_ready, 'the parameter services')
-    future = client.set_parameters([Parameter('f_d', value=2.0)])
-    spin_until(future.done, 'the set_parameters answer')
-    assert future.result().results[0].successful, future.result().results[0].reason
+    result = wait_future(client.set_parameters([Parameter('f_d', value=2.0)]))
+    assert result.results[0].successful, result.results[0].reason
     t_change = listener.clock
     spin_until(lambda: listener.clock >= t_change + 2.0, '2 s after the change')
     t1 = listener.clock

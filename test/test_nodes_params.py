@@ -4,27 +4,24 @@ The node runs in-process with its own context and domain; the tests talk to it w
 :class:`rclpy.parameter_client.AsyncParameterClient`, which is what ``ros2 param set`` uses.
 """
 import math
-import os
 import threading
 from pathlib import Path
 
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ['ROS_DOMAIN_ID'] = '73'
-DOMAIN_ID = 73
+import numpy as np
+import pytest
 
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
 
-import rclpy  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.node import Node  # noqa: E402
-from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from hybrid_force_controller.ros.controller_node import ControllerNode
+from ros_helpers import domain_id
+from sim_node.sim_node import SimNode
 
-from hybrid_force_controller.ros.controller_node import ControllerNode  # noqa: E402
-from sim_node.sim_node import SimNode  # noqa: E402
-
+DOMAIN_ID = domain_id('nodes_params')
 TIMEOUT = 30.0
 PARAMS_FILE = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
 

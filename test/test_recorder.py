@@ -1,11 +1,6 @@
 """BagRecorder over real DDS (localhost only, own domain) and read back with rosbags."""
 from __future__ import annotations
 
-import os
-
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # before rclpy is imported
-os.environ['ROS_DOMAIN_ID'] = '63'
-
 import time  # noqa: E402
 from typing import Callable  # noqa: E402
 
@@ -19,8 +14,9 @@ from rosbags.highlevel import AnyReader  # noqa: E402
 from hybrid_force_controller.tools.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,  # noqa: E402
                                             TOPIC_WRENCH, TOPIC_X, TYPESTORE)
 from hybrid_force_controller.ros.recorder_node import BagRecorder, message_class  # noqa: E402
+from ros_helpers import domain_id  # noqa: E402
 
-DOMAIN_ID = 63
+DOMAIN_ID = domain_id('recorder')
 TIMEOUT_S = 20.0
 COUNTS = {TOPIC_X: 5, TOPIC_WRENCH: 3, TOPIC_CONTACT_WRENCH: 2}
 

@@ -1,0 +1,230 @@
+"""Shared helpers of the tests that run over real DDS.
+
+* :func:`domain_id`: each test module gets its own ROS domain, offset from the base domain
+  of the run (``ROS_DOMAIN_ID`` when the run started, 42 by default), so two runs with
+  different bases (two checkouts, CI beside a developer) never hear each other. DDS stays
+  on this machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, set by conftest.py and
+  passed to every process).
+* :class:`NodeProcess`: a node started as ``python -m MODULE --ros-args ...``, its output
+  in a log file, stopped by its pid on every path (SIGINT, then SIGKILL).
+* :class:`Spun`: an rclpy context of its own, in a domain, with nodes spun by a background
+  executor thread.
+* :func:`wait_for`, :func:`wait_future`: wait on a condition with a wall timeout that only
+  guards against a hang (no test asserts wall time).
+* :func:`parse_diagnostics`: a ``/diagnostics`` status as a dict with typed values.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+ROOT = Path(__file__).resolve().parents[1]
+PARAMS_FILE = ROOT / 'config' / 'params.yaml'
+WALL_TIMEOUT = 120.0  # only against hangs
+
+BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID', '42'))
+# one domain per test module (offsets from BASE_DOMAIN); collisions are visible here
+_DOMAIN_OFFSETS = {
+    'default': 0, 'nodes_params': 1, 'nodes_closed_loop': 2, 'fault_injection': 3,
+    'any_arm': 4, 'colcon_build': 5, 'demo': 6, 'recorder': 7, 'realtime': 8,
+    'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
+    'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
+}
+
+
+def domain_id(name: str) -> int:
+    """The ROS domain of test module ``name`` in this run (valid Fast DDS ids: 0-232)."""
+    return (BASE_DOMAIN + _DOMAIN_OFFSETS[name]) % 233
+
+
+def node_env(domain: int, **extra: str) -> dict[str, str]:
+    """Environment of a node process: its domain, DDS on localhost, unbuffered logs."""
+    return dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain),
+                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1',
+                RCUTILS_LOGGING_BUFFERED_STREAM='0', **extra)
+
+
+class NodeProcess:
+    """One node process; its output goes to a log file that a failure message can show.
+
+    ``params_file`` (default config/params.yaml; ``None`` for none) and ``args`` follow
+    ``--ros-args``; ``argv`` goes before it (the executable's own options).
+    """
+
+    def __init__(self, module: str, log_path: Path, domain: int, args: Sequence[str] = (),
+                 params_file: Path | None = PARAMS_FILE, argv: Sequence[str] = (),
+                 env: dict[str, str] | None = None, cwd: Path = ROOT) -> None:
+        self.module, self.log_path, self.domain = module, Path(log_path), domain
+        self.args, self.params_file, self.argv = list(args), params_file, list(argv)
+        self.env, self.cwd = env, cwd
+        self.proc: subprocess.Popen | None = None
+        self.starts = 0
+        self.command_override: list[str] | None = None  # an installed executable instead
+
+    @property
+    def command(self) -> list[str]:
+        if self.command_override is not None:
+            return [*self.command_override, *self.argv, '--ros-args', *self.args]
+        files = [] if self.params_file is None else ['--params-file', str(self.params_file)]
+        return [sys.executable, '-m', self.module, *self.argv, '--ros-args', *files, *self.args]
+
+    def start(self) -> 'NodeProcess':
+        cmd = self.command
+        self.starts += 1
+        with open(self.log_path, 'a') as log:
+            log.write(f'\n===== start {self.starts}: {" ".join(cmd)}\n')
+            log.flush()
+            self.proc = subprocess.Popen(cmd, cwd=self.cwd, env=self.env or node_env(self.domain),
+                                         stdout=log, stderr=subprocess.STDOUT)
+        return self
+
+    @property
+    def pid(self) -> int:
+        assert self.proc is not None
+        return self.proc.pid
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    @property
+    def returncode(self) -> int | None:
+        return None if self.proc is None else self.proc.poll()
+
+    def signal(self, sig: int) -> None:
+        if self.alive:
+            self.proc.send_signal(sig)
+
+    def kill(self) -> None:
+        """SIGCONT (in case it was stopped), SIGKILL, and reap."""
+        if self.alive:
+            self.proc.send_signal(signal.SIGCONT)
+            self.proc.kill()
+        if self.proc is not None:
+            self.proc.wait(30)
+
+    def stop(self, timeout: float = 10.0) -> int | None:
+        """SIGINT (clean shutdown); SIGKILL if it does not exit within ``timeout``.
+        Returns the exit code."""
+        if self.alive:
+            self.proc.send_signal(signal.SIGCONT)
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        return self.returncode
+
+    def log_size(self) -> int:
+        return self.log_path.stat().st_size if self.log_path.exists() else 0
+
+    def log_since(self, offset: int = 0) -> str:
+        if not self.log_path.exists():
+            return ''
+        with open(self.log_path, errors='replace') as f:
+            f.seek(offset)
+            return f.read()
+
+    def tail(self, chars: int = 2500) -> str:
+        return f'--- {self.log_path.name} (tail)\n{self.log_since(max(0, self.log_size() - chars))}'
+
+    def __enter__(self) -> 'NodeProcess':
+        return self.start()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()
+
+
+class Spun:
+    """An rclpy context in ``domain`` whose nodes a background executor thread spins."""
+
+    def __init__(self, domain: int, args: list[str] | None = None) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        self.context = Context()
+        rclpy.init(args=args, context=self.context, domain_id=domain)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes: list[Any] = []
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def add(self, node: Any) -> Any:
+        """Spin ``node`` (created with ``context=self.context``); returns it."""
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def node(self, name: str) -> Any:
+        """A plain node in this context, spun."""
+        import rclpy
+        return self.add(rclpy.create_node(name, context=self.context))
+
+    def close(self) -> None:
+        import rclpy
+        self.executor.shutdown(timeout_sec=WALL_TIMEOUT)
+        for node in self.nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(WALL_TIMEOUT)
+
+    def __enter__(self) -> 'Spun':
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def wait_for(predicate: Callable[[], bool], what: str, timeout: float = WALL_TIMEOUT,
+             alive: Iterable[NodeProcess] = (), poll: float = 0.01) -> None:
+    """Wait until ``predicate()`` holds; fail (with the processes' log tails) when one of
+    ``alive`` exits or after ``timeout`` s of wall time (a guard against hangs only)."""
+    procs = list(alive)
+    deadline = time.monotonic() + timeout
+    pause = threading.Event()
+    while not predicate():
+        for p in procs:
+            if not p.alive:
+                raise AssertionError(f'{p.module} exited ({p.returncode}) while waiting for '
+                                     f'{what}\n{p.tail()}')
+        if time.monotonic() > deadline:
+            raise AssertionError(f'timed out waiting for {what}\n'
+                                 + '\n'.join(p.tail() for p in procs))
+        pause.wait(poll)
+
+
+def wait_future(future: Any, timeout: float = WALL_TIMEOUT) -> Any:
+    """Result of a future completed by a background executor (fails after ``timeout``)."""
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    assert done.wait(timeout), 'no answer from the service'
+    return future.result()
+
+
+def parse_diagnostics(msg: Any) -> dict[str, Any]:
+    """The first status of a DiagnosticArray: ``level``, ``message``, ``name`` and every
+    key-value, with ints, floats and booleans converted."""
+    status = msg.status[0]
+    level = status.level
+    values: dict[str, Any] = {
+        'level': int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level),
+        'message': status.message, 'name': status.name}
+    for kv in status.values:
+        v: Any = kv.value
+        if v in ('True', 'False'):
+            v = v == 'True'
+        else:
+            for kind in (int, float):
+                try:
+                    v = kind(v)
+                    break
+                except ValueError:
+                    pass
+        values[kv.key] = v
+    return values

@@ -90,11 +90,22 @@ def test_contact_loss_of_half_a_second():
     in_contact[700:750] = False  # 50 samples x 10 ms
     metrics = compute_metrics(dataclasses.replace(base, in_contact=in_contact))
     assert metrics['contact_lost_s'] == pytest.approx(0.5)
+    assert metrics['contact_lost_window_s'] == pytest.approx(0.5)  # t = 7.0-7.5 s
+
+
+def test_contact_loss_before_the_window_is_not_in_the_window():
+    base = make_log()
+    in_contact = np.ones(base.t.size, dtype=bool)
+    in_contact[200:230] = False  # 0.3 s lost at t = 2 s (a start-up transient)
+    metrics = compute_metrics(dataclasses.replace(base, in_contact=in_contact), t_start=5.0)
+    assert metrics['contact_lost_s'] == pytest.approx(0.3)
+    assert metrics['contact_lost_window_s'] == 0.0
 
 
 def test_never_in_contact_counts_the_whole_run():
     log = make_log(in_contact=np.zeros(1001, dtype=bool))
     assert compute_metrics(log)['contact_lost_s'] == pytest.approx(10.0)
+    assert compute_metrics(log, t_start=5.0)['contact_lost_window_s'] == pytest.approx(5.0)
 
 
 def test_no_samples_after_t_start():

@@ -92,7 +92,7 @@ def test_planar_redundant_arm_closed_loop(monkeypatch):
 
 
 def test_spatial_square_arm_closed_loop():
-    model = RobotModel.from_urdf(SPATIAL3, end_effector_link='tool0', gravity_W=Z_UP)
+    model = RobotModel.from_urdf(SPATIAL3, end_effector_link='tool0', gravity_root=Z_UP)
     assert model.n == 3 and model.task_axes == (0, 1, 2) and not model.redundant
     q0 = (0.2, 0.3, 1.0)  # singular values of J 1.26 / 0.83 / 0.28
     p0 = _tool_start(model, q0)
@@ -246,7 +246,7 @@ def test_unusable_chain_is_rejected(build, words):
 
 # --------------------------------------------------------------------------- 5. base_link
 BASE_XYZ, BASE_RPY = np.array([0.3, -0.2, 0.5]), (0.2, -0.4, 0.7)
-R_WB = pin.rpy.rpyToMatrix(*BASE_RPY)
+R_root_W = pin.rpy.rpyToMatrix(*BASE_RPY)
 
 
 def _two_link_on_a_stand():
@@ -263,8 +263,8 @@ def _two_link_on_a_stand():
 
 def test_task_space_is_expressed_in_base_link():
     urdf = _two_link_on_a_stand()
-    gravity_W = R_WB @ np.array([0.0, -9.81, 0.0])  # the paper's gravity, in the new root
-    model = RobotModel.from_urdf(urdf, base_link='base_link', gravity_W=gravity_W)
+    gravity_root = R_root_W @ np.array([0.0, -9.81, 0.0])  # the paper's gravity, in the new root
+    model = RobotModel.from_urdf(urdf, base_link='base_link', gravity_root=gravity_root)
     plain = RobotModel.from_urdf()
     assert model.root_link == 'world' and model.base_link == 'base_link'
     assert model.task_axes == (0, 1) and model.joint_names == plain.joint_names
@@ -274,15 +274,15 @@ def test_task_space_is_expressed_in_base_link():
         kin, ref = model.kinematics(q, qdot), plain.kinematics(q, qdot)
         for name in ('p_W', 'R_W_ee', 'x', 'xdot', 'J_ee', 'Jdot_ee'):
             assert np.allclose(getattr(kin, name), getattr(ref, name), atol=1e-12), name
-        # the same point, seen from the URDF root: p_world = R_WB p_base + t_WB
+        # the same point, seen from the URDF root: p_root = R_root_W p_W + t_root_W (W: base_link)
         data = model.model.createData()
         pin.forwardKinematics(model.model, data, q)
         oMf = pin.updateFramePlacement(model.model, data, model.frame_id)
-        assert np.allclose(oMf.translation, R_WB @ ref.p_W + BASE_XYZ, atol=1e-12)
+        assert np.allclose(oMf.translation, R_root_W @ ref.p_W + BASE_XYZ, atol=1e-12)
         assert not np.allclose(oMf.translation[:2], ref.x)  # the transform is not trivial
         J_world = pin.computeFrameJacobian(model.model, data, q, model.frame_id,
                                            pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:3]
-        assert np.allclose(R_WB.T @ J_world, np.vstack([ref.J_ee, np.zeros(2)]), atol=1e-12)
+        assert np.allclose(R_root_W.T @ J_world, np.vstack([ref.J_ee, np.zeros(2)]), atol=1e-12)
         assert np.allclose(model.frame_rotation(q, 'tool0'), plain.frame_rotation(q, 'tool0'))
         # gravity given in the root frame: the same joint-space dynamics
         for a, b in zip(model.joint_terms(q, qdot), plain.joint_terms(q, qdot)):
@@ -290,9 +290,9 @@ def test_task_space_is_expressed_in_base_link():
 
 
 def test_closed_loop_with_base_link_different_from_root():
-    gravity_W = R_WB @ np.array([0.0, -9.81, 0.0])
+    gravity_root = R_root_W @ np.array([0.0, -9.81, 0.0])
     model = RobotModel.from_urdf(_two_link_on_a_stand(), base_link='base_link',
-                                 gravity_W=gravity_W)
+                                 gravity_root=gravity_root)
     result = run_scenario(ScenarioConfig(q0=PAPER_Q0, duration=8.0, theta_hat0_scale=0.7),
                           model)
     met = compute_metrics(RunLog.from_result(result), t_start=5.0)

@@ -12,12 +12,14 @@ import pinocchio as pin
 import pytest
 
 from hybrid_force_controller.core.control_law import (ControlError, HybridForceController,
-                                                 adapt_theta)
+                                                      adapt_theta)
+from hybrid_force_controller.core.effort import EffortLimiter
 from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.params import ParameterValidationError, check_stability
+from hybrid_force_controller.core.params import (ParameterValidationError, build_params,
+                                                 check_stability)
 from hybrid_force_controller.core.reference import Reference, SineReference, blend_start
 from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import PAPER_Q0, make_controller_params
+from hybrid_force_controller.core.scenario import PAPER_Q0
 from hybrid_force_controller.core.simulator import ArmSimulator
 
 Q0 = np.array(PAPER_Q0)
@@ -30,11 +32,17 @@ def model() -> RobotModel:
 
 
 def make_ctrl(model: RobotModel, **overrides) -> HybridForceController:
-    return HybridForceController(model, make_controller_params(model, overrides))
+    """A controller with the gains of ``build_params(model, overrides)``; ``ctrl.full`` is
+    the whole parameter set (for the reference)."""
+    params = build_params(model, overrides)
+    ctrl = HybridForceController(model, params.law)
+    ctrl.full = params
+    return ctrl
 
 
 def sine_ref(params, t: float = 0.3) -> Reference:
-    return SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)(t)
+    rt = params.runtime
+    return SineReference(rt.ref_center, rt.ref_amplitude, rt.ref_omega)(t)
 
 
 def task_velocity_from_pinocchio(model: RobotModel, q, qdot) -> np.ndarray:
@@ -49,15 +57,16 @@ def test_r_does_not_depend_on_the_velocity(model):
     """Scaled eq. (11): r has no velocity (nor force-rate) term; e does."""
     ctrl = make_ctrl(model)
     ctrl.h = 0.37  # a non-zero force integral, so its term is present
-    p = ctrl.params
-    n = p.n[list(model.task_axes)]
-    ref = sine_ref(p)
+    n = ctrl.gains.n[list(model.task_axes)]
+    ref = sine_ref(ctrl.full)
     f = np.array([0.0, -1.4])  # task coordinates (x, y): 1.4 N along n = -y
     kin0 = model.kinematics(Q0, np.array([0.1, -0.2]))
-    r0, _, e0, _ = ctrl.reference_velocity(kin0, ref, f)
+    r0 = ctrl.reference_velocity(kin0, ref, f)[0]
+    e0 = kin0.xdot - r0
     for dqdot in ([0.5, 0.5], [0.7, -0.7], [3.0, 2.0], [-0.4, 0.0]):
         kin1 = model.kinematics(Q0, np.array([0.1, -0.2]) + dqdot)
-        r1, _, e1, _ = ctrl.reference_velocity(kin1, ref, f)
+        r1 = ctrl.reference_velocity(kin1, ref, f)[0]
+        e1 = kin1.xdot - r1
         assert float(n @ r1) == pytest.approx(float(n @ r0), abs=1e-15)
         np.testing.assert_allclose(r1, r0, rtol=0.0, atol=1e-15)
         # ... while the perturbation did change the normal velocity and e
@@ -69,13 +78,12 @@ def test_r_matches_the_documented_formula(model):
     """r = (I - S)(xdot_d - l1 dx) - n (c l1 df_n + l2 h), c = 1 / k_s."""
     ctrl = make_ctrl(model, lambda1=30.0, lambda2=0.05, k_s=4000.0, k_max=4000.0, f_d=2.0)
     ctrl.h = -0.2
-    p = ctrl.params
     ax = list(model.task_axes)
-    n = p.n[ax]
-    ref = sine_ref(p, 0.8)
+    n = ctrl.gains.n[ax]
+    ref = sine_ref(ctrl.full, 0.8)
     kin = model.kinematics(Q0, np.array([0.2, 0.1]))
     f = np.array([0.3, -2.5])
-    r, _, _, df_n = ctrl.reference_velocity(kin, ref, f)
+    r, _, df_n, _ = ctrl.reference_velocity(kin, ref, f)
     assert df_n == pytest.approx(2.5 - 2.0)
     P_t = np.eye(2) - np.outer(n, n)
     expected = (P_t @ (ref.xdot_d_W[ax] - 30.0 * (kin.x - ref.x_d_W[ax]))
@@ -87,17 +95,18 @@ def test_returned_e_is_xdot_minus_r(model):
     """Eq. (8): e = xdot - r, with xdot from pinocchio directly."""
     ctrl = make_ctrl(model)
     rng = np.random.default_rng(0)
-    ref = sine_ref(ctrl.params, 1.1)
+    ref = sine_ref(ctrl.full, 1.1)
     for _ in range(5):
         q = Q0 + rng.uniform(-0.2, 0.2, 2)
         qdot = rng.uniform(-1.0, 1.0, 2)
         f_W = np.array([0.0, -rng.uniform(0.5, 2.0), 0.0])
         kin = model.kinematics(q, qdot)
-        r, _, e_rv, _ = ctrl.reference_velocity(kin, ref, f_W[:2])  # r with h before step
+        r, _, _, r_n = ctrl.reference_velocity(kin, ref, f_W[:2])  # r with h before step
         out = ctrl.step(q, qdot, f_W, ref, DT)
         xdot = task_velocity_from_pinocchio(model, q, qdot)
         np.testing.assert_allclose(out.e, xdot - r, rtol=0.0, atol=1e-12)
-        np.testing.assert_allclose(out.e, e_rv, rtol=0.0, atol=1e-15)
+        n = ctrl.gains.n[list(model.task_axes)]
+        assert out.r_n == pytest.approx(float(n @ r), abs=1e-15)
 
 
 def _record_r(model: RobotModel, k_surface: float, steps: int = 1500):
@@ -107,16 +116,16 @@ def _record_r(model: RobotModel, k_surface: float, steps: int = 1500):
     with the force integral h the controller holds at that tick.
     """
     ctrl = make_ctrl(model)
-    p = ctrl.params
+    p, rt = ctrl.gains, ctrl.full.runtime
     p0 = model.kinematics(Q0, np.zeros(2)).p_W
     sim = ArmSimulator(model, ElasticSurface.create(k_surface, p0, p.n), Q0, substeps=8)
-    sine = SineReference(p.ref_center, p.ref_amplitude, p.ref_omega)
+    sine = SineReference(rt.ref_center, rt.ref_amplitude, rt.ref_omega)
     offset = (np.eye(3) - np.outer(p.n, p.n)) @ (p0 - sine(0.0).x_d_W)
     n = p.n[list(model.task_axes)]
     rs, rdots, fns = [], [], []
     meas = sim.measure()
     for i in range(steps):
-        ref = blend_start(sine(i * DT), offset, i * DT, p.ref_blend_time)
+        ref = blend_start(sine(i * DT), offset, i * DT, rt.ref_blend_time)
         f = meas.f_W[list(model.task_axes)]
         r, rdot, _, _ = ctrl.reference_velocity(model.kinematics(meas.q, meas.qdot), ref, f)
         rs.append(r)
@@ -205,22 +214,23 @@ def test_adapt_theta_is_clipped_to_the_box():
     np.testing.assert_allclose(out, [0.8, 2.0], rtol=1e-15)
 
 
-def test_step_adapts_with_k_s_times_e(model):
-    """The update in step() is (26) on k_s e: theta - dt Gamma^-1 Y_x^T (k_s e).
+def test_step_adapts_with_k_a_times_e(model):
+    """The update in step() is (26) on k_a e: theta - dt Gamma^-1 Y_x^T (k_a e).
 
     A short dt keeps the step inside the projection box."""
-    ctrl = make_ctrl(model, gamma=[70.0, 50.0])
-    p = ctrl.params
+    ctrl = make_ctrl(model, gamma=[70.0, 50.0], k_a=3000.0)
+    p = ctrl.gains
     q, qdot = Q0 + 0.05, np.array([0.3, -0.1])
     f_W = np.array([0.0, -1.2, 0.0])
-    ref = sine_ref(p, 0.5)
+    ref = sine_ref(ctrl.full, 0.5)
     theta0 = ctrl.theta_hat.copy()
     kin = model.kinematics(q, qdot)
-    r, rdot, e, _ = ctrl.reference_velocity(kin, ref, f_W[:2])
+    r, rdot, _, _ = ctrl.reference_velocity(kin, ref, f_W[:2])
+    e = kin.xdot - r
     Y_x = model.regressor_x(q, qdot, r, rdot)
     dt = 1e-5
     out = ctrl.step(q, qdot, f_W, ref, dt)
-    expected = theta0 - dt * np.linalg.inv(p.Gamma) @ Y_x.T @ (p.k_s * e)
+    expected = theta0 - dt * np.linalg.inv(p.Gamma) @ Y_x.T @ (3000.0 * e)
     assert np.all((expected > p.theta_min) & (expected < p.theta_max))
     assert np.abs(expected - theta0).min() > 1e-3  # a visible step
     np.testing.assert_allclose(out.theta_hat, expected, rtol=1e-9, atol=1e-12)
@@ -229,34 +239,40 @@ def test_step_adapts_with_k_s_times_e(model):
 # ---------------------------------------------------------------- output limits
 @pytest.mark.parametrize('f_W', [[0.0, -1e4, 0.0], [0.0, 1e4, 0.0], [1e4, 1e4, 0.0],
                                  [-1e4, 0.0, 0.0]])
-def test_effort_never_exceeds_limits(model, f_W):
-    ctrl = make_ctrl(model, effort_limits=[30.0, 20.0])
+def test_limited_effort_never_exceeds_limits(model, f_W):
+    ctrl = make_ctrl(model)
+    limiter = EffortLimiter(np.array([30.0, 20.0]))
     rng = np.random.default_rng(1)
-    ref = sine_ref(ctrl.params)
+    ref = sine_ref(ctrl.full)
     for _ in range(20):
         q = Q0 + rng.uniform(-0.3, 0.3, 2)
         out = ctrl.step(q, rng.uniform(-2, 2, 2), np.array(f_W), ref, DT)
-        assert np.all(np.isfinite(out.tau))
-        assert np.all(np.abs(out.tau) <= [30.0, 20.0])
-        assert out.saturated
+        tau, saturated = limiter(out.tau)
+        assert np.all(np.isfinite(tau))
+        assert np.all(np.abs(tau) <= [30.0, 20.0])
+        assert saturated and np.abs(out.tau).max() > 30.0  # the law's effort was beyond
 
 
 def test_max_effort_rate_limits_the_per_tick_change(model):
     rate = 0.5
-    limited = make_ctrl(model, max_effort_rate=rate)
-    free = make_ctrl(model)
-    ref = sine_ref(limited.params)
+    ctrl = make_ctrl(model)
+    limits = ctrl.full.runtime.effort_limits
+    limited, free = EffortLimiter(limits, rate), EffortLimiter(limits)
+    ref = sine_ref(ctrl.full)
     taus, free_taus = [], []
     for i in range(30):
         f_W = np.array([0.0, -1e4 if i % 2 else 1e4, 0.0]) * (1 + 0.01 * i)
         if i == 10:
             f_W = np.array([0.0, -1.0, 0.0])
-        taus.append(limited.step(Q0, np.zeros(2), f_W, ref, DT).tau)
-        free_taus.append(free.step(Q0, np.zeros(2), f_W, ref, DT).tau)
+        tau = ctrl.step(Q0, np.zeros(2), f_W, ref, DT).tau
+        taus.append(limited(tau)[0])
+        free_taus.append(free(tau)[0])
     d = np.abs(np.diff(taus, axis=0))
     assert d.max() <= rate + 1e-12
     assert np.abs(np.diff(free_taus, axis=0)).max() > 10 * rate  # the limit was active
-    assert np.all(np.abs(taus) <= limited.params.effort_limits)
+    assert np.all(np.abs(taus) <= limits)
+    limited.reset()  # a restart does not rate-limit against the last command
+    np.testing.assert_array_equal(limited(free_taus[0])[0], free_taus[0])
 
 
 # ---------------------------------------------------------------- bad input
@@ -267,20 +283,36 @@ def test_max_effort_rate_limits_the_per_tick_change(model):
 ])
 def test_non_finite_input_raises_and_keeps_state(model, which, value):
     ctrl = make_ctrl(model)
-    ref = sine_ref(ctrl.params)
+    ref = sine_ref(ctrl.full)
     good = dict(q=Q0.copy(), qdot=np.zeros(2), f=np.array([0.0, -1.5, 0.0]))
     ctrl.step(good['q'], good['qdot'], good['f'], ref, DT)  # h and theta_hat move
-    theta, h, tau_prev = ctrl.theta_hat.copy(), ctrl.h, ctrl.tau_prev.copy()
+    theta, h = ctrl.theta_hat.copy(), ctrl.h
     bad = dict(good, **{which: np.array(value)})
     with pytest.raises(ControlError):
         ctrl.step(bad['q'], bad['qdot'], bad['f'], ref, DT)
     np.testing.assert_array_equal(ctrl.theta_hat, theta)
     assert ctrl.h == h
-    np.testing.assert_array_equal(ctrl.tau_prev, tau_prev)
 
 
-@pytest.mark.parametrize('dt', [0.0, -1e-3, math.nan, math.inf])
+@pytest.mark.parametrize('dt', [-1e-3, math.nan, math.inf])
 def test_bad_dt_raises(model, dt):
     ctrl = make_ctrl(model)
     with pytest.raises(ControlError):
-        ctrl.step(Q0, np.zeros(2), np.array([0.0, -1.0, 0.0]), sine_ref(ctrl.params), dt)
+        ctrl.step(Q0, np.zeros(2), np.array([0.0, -1.0, 0.0]), sine_ref(ctrl.full), dt)
+
+
+def test_zero_dt_recomputes_the_effort_and_integrates_nothing(model):
+    """A tick without a new state: the same command, theta_hat and h unchanged."""
+    ctrl = make_ctrl(model)
+    ref, f_W = sine_ref(ctrl.full), np.array([0.0, -1.5, 0.0])
+    q, qdot = Q0 + 0.02, np.array([0.2, -0.1])
+    ctrl.step(q, qdot, f_W, ref, DT)
+    theta, h = ctrl.theta_hat.copy(), ctrl.h
+    again = [ctrl.step(q, qdot, f_W, ref, 0.0).tau for _ in range(3)]
+    np.testing.assert_array_equal(ctrl.theta_hat, theta)
+    assert ctrl.h == h
+    np.testing.assert_array_equal(again[0], again[2])
+    moved = ctrl.step(q, qdot, f_W, ref, DT)  # control: a positive dt does integrate
+    assert not np.array_equal(ctrl.theta_hat, theta) and ctrl.h != h
+    moved_again = ctrl.step(q, qdot, f_W, ref, 0.0)
+    assert not np.array_equal(moved_again.tau, again[0])

@@ -367,7 +367,7 @@ def test_fewer_joints_than_the_task_needs_is_rejected():
 def test_base_link_must_be_fixed_and_known():
     xml = default_urdf_path().read_text()
     with pytest.raises(ModelError, match='link1'):
-        RobotModel.from_urdf(xml, base_link='link1', gravity_W=(0, -9.81, 0))
+        RobotModel.from_urdf(xml, base_link='link1', gravity_root=(0, -9.81, 0))
     with pytest.raises(ModelError, match='nowhere'):
         RobotModel.from_urdf(xml, base_link='nowhere')
 

@@ -82,7 +82,7 @@ def test_integer_is_accepted_as_double(controller):
     assert result.successful, result.reason
     value = _get(client, 'f_d')
     assert isinstance(value, float) and value == 2.0
-    assert node.runtime.params.f_d == 2.0
+    assert node.runtime.params.law.f_d == 2.0
     assert _set(client, f_d=1.0)[0].successful
 
 
@@ -91,7 +91,7 @@ def test_integer_normal_is_normalised(controller):
     (result,) = _set(client, n=[0, 2, 0])
     assert result.successful, result.reason
     assert list(_get(client, 'n')) == [0.0, 1.0, 0.0]
-    np.testing.assert_array_equal(node.runtime.params.n, [0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(node.runtime.params.law.n, [0.0, 1.0, 0.0])
     assert _set(client, n=[0.0, -1.0, 0.0])[0].successful
 
 
@@ -101,7 +101,7 @@ def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
     assert not result.successful
     assert '100' in result.reason and '1200' in result.reason, result.reason
     assert _get(client, 'lambda1') == 40.0
-    assert node.runtime.params.lambda1 == 40.0
+    assert node.runtime.params.law.lambda1 == 40.0
 
 
 @pytest.mark.parametrize('name, value', [
@@ -131,7 +131,7 @@ def test_atomic_multi_set_with_one_bad_value_changes_nothing(controller):
     result = _wait(client.set_parameters_atomically(bad)).result
     assert not result.successful and result.reason
     assert (_get(client, 'f_d'), _get(client, 'lambda1'), _get(client, 'k_d')) == (
-        1.0, 40.0, 200.0)
+        1.0, 40.0, 60.0)
     assert node.runtime.params is params_before
 
 
@@ -141,7 +141,7 @@ def test_atomic_multi_set_is_validated_as_a_whole(controller):
     good = [Parameter('lambda1', value=20), Parameter('lambda2', value=0.01)]
     result = _wait(client.set_parameters_atomically(good)).result
     assert result.successful, result.reason
-    assert (node.runtime.params.lambda1, node.runtime.params.lambda2) == (20.0, 0.01)
+    assert (node.runtime.params.law.lambda1, node.runtime.params.law.lambda2) == (20.0, 0.01)
     restore = [Parameter('lambda2', value=0.1), Parameter('lambda1', value=40.0)]
     assert _wait(client.set_parameters_atomically(restore)).result.successful
 
@@ -151,9 +151,9 @@ def test_params_file_configures_both_nodes():
     running = _Running(lambda ctx: [ControllerNode(context=ctx), SimNode(context=ctx)], args)
     try:
         controller, sim = running.nodes
-        p = controller.runtime.params
-        assert (p.lambda1, p.lambda2, p.k_d, p.k_max, p.k_s, p.f_d) == (
-            40.0, 0.1, 200.0, 6000.0, 6000.0, 3.0)
+        p = controller.runtime.params.law
+        assert (p.lambda1, p.lambda2, p.k_d, p.k_a, p.k_max, p.k_s, p.f_d) == (
+            40.0, 0.1, 60.0, 1500.0, 6000.0, 6000.0, 3.0)
         np.testing.assert_array_equal(np.diag(p.Gamma), [70.0, 70.0])
         np.testing.assert_array_equal(p.n, [0.0, -1.0, 0.0])
         assert sim.sim.surface.k == 1700.0

@@ -1,4 +1,4 @@
-"""The controller parameter schema and build_controller_params (pure Python + numpy)."""
+"""The controller parameter schema and build_params (pure Python + numpy)."""
 from __future__ import annotations
 
 import math
@@ -7,11 +7,10 @@ import re
 import numpy as np
 import pytest
 
-from hybrid_force_controller.core.params import (CONTROLLER_SCHEMA, ControllerParams,
-                                            ParameterValidationError,
-                                            build_controller_params, schema_defaults)
+from hybrid_force_controller.core.params import (CONTROLLER_SCHEMA, ControllerParams, LawGains,
+                                                 ParameterValidationError, RuntimeConfig,
+                                                 build_params, schema_defaults)
 from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import make_controller_params
 
 DOUBLES = [s.name for s in CONTROLLER_SCHEMA if s.kind == 'double']
 
@@ -22,9 +21,7 @@ def model() -> RobotModel:
 
 
 def build(model: RobotModel, values: dict) -> ControllerParams:
-    return build_controller_params(values, p=len(model.theta_nominal), n_joints=model.n,
-                                   task_axes=model.task_axes, theta_nominal=model.theta_nominal,
-                                   urdf_effort_limits=model.effort_limits)
+    return build_params(model, values)
 
 
 def rejects(model: RobotModel, values: dict, name: str) -> str:
@@ -37,17 +34,20 @@ def rejects(model: RobotModel, values: dict, name: str) -> str:
 
 
 # ---------------------------------------------------------------- schema
-def test_schema_names_are_unique_and_match_the_dataclass():
+def test_schema_names_are_unique_and_match_the_dataclasses():
     names = [s.name for s in CONTROLLER_SCHEMA]
     assert len(names) == len(set(names))
-    fields = set(ControllerParams.__dataclass_fields__)
-    assert set(names) - {'gamma'} == fields - {'Gamma'}
+    assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime'}
+    law = {s.name for s in CONTROLLER_SCHEMA if s.group == 'law'}
+    runtime = {s.name for s in CONTROLLER_SCHEMA if s.group == 'runtime'}
+    assert law - {'gamma'} == set(LawGains.__dataclass_fields__) - {'Gamma'}
+    assert runtime == set(RuntimeConfig.__dataclass_fields__)
 
 
 @pytest.mark.parametrize('spec', CONTROLLER_SCHEMA, ids=lambda s: s.name)
 def test_every_spec_has_a_description_and_a_valid_default(model, spec):
     assert isinstance(spec.description, str) and spec.description.strip()
-    assert spec.kind in ('double', 'integer', 'double_array', 'string_array', 'string')
+    assert spec.kind in ('double', 'integer', 'double_array', 'string_array', 'string', 'bool')
     if spec.kind == 'double':
         assert isinstance(spec.default, float)
         assert spec.lo is None or spec.default >= spec.lo
@@ -58,41 +58,65 @@ def test_every_spec_has_a_description_and_a_valid_default(model, spec):
 
 def test_all_defaults_validate(model):
     p = build(model, schema_defaults())
-    assert p.joints == ('joint1', 'joint2')
-    np.testing.assert_array_equal(p.theta_hat0, model.theta_nominal)
-    np.testing.assert_array_equal(p.Gamma, 70.0 * np.eye(2))
-    np.testing.assert_array_equal(p.effort_limits, model.effort_limits)
-    np.testing.assert_array_equal(p.theta_min, [0.0, 0.0])
-    np.testing.assert_allclose(p.theta_max, 10 * model.theta_nominal)
+    assert p.runtime.joints == ('joint1', 'joint2')
+    np.testing.assert_array_equal(p.law.theta_hat0, model.theta_nominal)
+    np.testing.assert_array_equal(p.law.Gamma, 70.0 * np.eye(2))
+    np.testing.assert_array_equal(p.runtime.effort_limits, model.effort_limits)
+    np.testing.assert_array_equal(p.law.theta_min, [0.0, 0.0])
+    np.testing.assert_allclose(p.law.theta_max, 10 * model.theta_nominal)
 
 
 # ---------------------------------------------------------------- accepted and normalised
 def test_integers_are_accepted_for_doubles(model):
     p = build(model, {'f_d': 2, 'lambda1': 50, 'k_d': 300})
-    assert p.f_d == 2.0 and isinstance(p.f_d, float)
-    assert p.lambda1 == 50.0 and p.k_d == 300.0
+    assert p.law.f_d == 2.0 and isinstance(p.law.f_d, float)
+    assert p.law.lambda1 == 50.0 and p.law.k_d == 300.0
 
 
 def test_normal_is_normalised(model):
     p = build(model, {'n': [0, 2, 0]})
-    np.testing.assert_allclose(p.n, [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(p.law.n, [0.0, 1.0, 0.0])
     p = build(model, {'n': [3.0, -4.0, 0.0]})
-    np.testing.assert_allclose(p.n, [0.6, -0.8, 0.0])
+    np.testing.assert_allclose(p.law.n, [0.6, -0.8, 0.0])
 
 
 def test_scalar_gamma_is_times_identity(model):
     p = build(model, {'gamma': [3.0]})
-    np.testing.assert_array_equal(p.Gamma, 3.0 * np.eye(2))
+    np.testing.assert_array_equal(p.law.Gamma, 3.0 * np.eye(2))
 
 
 def test_full_gamma_matrix_is_accepted(model):
     p = build(model, {'gamma': [2.0, 0.5, 0.5, 1.0]})
-    np.testing.assert_array_equal(p.Gamma, [[2.0, 0.5], [0.5, 1.0]])
+    np.testing.assert_array_equal(p.law.Gamma, [[2.0, 0.5], [0.5, 1.0]])
 
 
-def test_make_controller_params_applies_overrides(model):
-    p = make_controller_params(model, {'lambda1': 45.0})
-    assert p.lambda1 == 45.0 and p.joints == model.joint_names
+def test_build_params_applies_overrides_and_defaults_joints_to_the_model(model):
+    p = build_params(model, {'lambda1': 45.0})
+    assert p.law.lambda1 == 45.0 and p.runtime.joints == model.joint_names
+
+
+@pytest.mark.parametrize('name', ['theta_min', 'theta_max', 'effort_limits', 'theta_hat0'])
+@pytest.mark.parametrize('empty', [None, []])
+def test_empty_array_means_default(model, name, empty):
+    """What ``ros2 param dump`` writes for these defaults reloads to the defaults."""
+    default = build(model, {})
+    p = build(model, {name: empty})
+    group = 'runtime' if name == 'effort_limits' else 'law'
+    np.testing.assert_array_equal(getattr(getattr(p, group), name),
+                                  getattr(getattr(default, group), name))
+
+
+@pytest.mark.parametrize('name,value', [('n', [True, False, False]), ('gamma', [True]),
+                                        ('effort_limits', [1.0, True])])
+def test_bool_arrays_rejected(model, name, value):
+    msg = rejects(model, {name: value}, name)
+    assert 'numbers' in msg
+
+
+@pytest.mark.parametrize('value', [1, 0.0, 'true', None])
+def test_bool_parameter_needs_a_bool(model, value):
+    msg = rejects(model, {'reject_frozen_wrench': value}, 'reject_frozen_wrench')
+    assert 'true or false' in msg
 
 
 # ---------------------------------------------------------------- rejected
@@ -196,4 +220,4 @@ def test_rejection_leaves_no_partial_result(model):
     """A failing set raises; a following valid set is unaffected (no shared state)."""
     with pytest.raises(ParameterValidationError):
         build(model, {'lambda1': 'abc'})
-    assert build(model, {}).lambda1 == 40.0
+    assert build(model, {}).law.lambda1 == 40.0

@@ -1,7 +1,8 @@
 """ControllerRuntime (what the controller node does between messages), driven by arrays
 from the offline plant: input handling, safe mode, output order and a short closed loop.
 
-The wiring follows scenario.py: the plant starts at the paper's pose touching the surface
+Closed loops go through the loop engine (engine.py, lockstep timing, one tick per plant
+step), as scenario.py does: the plant starts at the paper's pose touching the surface
 (k = 1700 N/m, normal -y); the wrist sensor reports the wrench in 'tool0'
 (:func:`sensor_wrench_from_f_W`). No ROS.
 """
@@ -12,11 +13,13 @@ import math
 import numpy as np
 import pytest
 
+from hybrid_force_controller.core.engine import LoopEngine
 from hybrid_force_controller.core.environment import ElasticSurface, sensor_wrench_from_f_W
+from hybrid_force_controller.core.params import build_params
 from hybrid_force_controller.core.reference import SineReference
 from hybrid_force_controller.core.robot_model import RobotModel
 from hybrid_force_controller.core.runtime import ControllerRuntime, InputError
-from hybrid_force_controller.core.scenario import PAPER_Q0, make_controller_params
+from hybrid_force_controller.core.scenario import PAPER_Q0
 from hybrid_force_controller.core.simulator import ArmSimulator
 
 DT = 1e-3
@@ -29,24 +32,35 @@ def model() -> RobotModel:
 
 
 class Loop:
-    """Runtime + plant at 1 kHz; ``step`` feeds the latest measurement, ticks, and
-    applies the effort to the plant."""
+    """Runtime + plant at 1 kHz through the loop engine; ``step(feed)`` runs one period
+    (the plant's state reaches the runtime only when ``feed``) and returns the runtime's
+    output and the measurement it was computed from."""
 
     def __init__(self, model: RobotModel, **overrides) -> None:
         self.model = model
-        self.params = make_controller_params(model, overrides)
+        self.params = build_params(model, overrides)
         self.rt = ControllerRuntime(model, self.params)
         p0 = model.kinematics(Q0, np.zeros(model.n)).p_W
-        self.sim = ArmSimulator(model, ElasticSurface.create(1700.0, p0, self.params.n), Q0,
-                                substeps=2)
-        self.meas = self.sim.measure()
-        self.k = 0
+        self.sim = ArmSimulator(model, ElasticSurface.create(1700.0, p0, self.params.law.n),
+                                Q0, substeps=2)
+        self.feeding = True
+        self.engine = LoopEngine(self.rt, self.sim, 60.0,
+                                 input_hook=lambda t, msg: msg if self.feeding else None)
 
     @property
     def t(self) -> float:
-        return self.k * DT
+        return self.engine.t
+
+    @property
+    def k(self) -> int:
+        return self.engine.k
+
+    @property
+    def meas(self):
+        return self.engine.meas
 
     def feed(self, names=None, q=None, qdot=None) -> None:
+        """The current measurement straight into the runtime (names, q, qdot overridable)."""
         m, t = self.meas, self.t
         names = list(self.model.joint_names) if names is None else names
         self.rt.on_joint_state(names, m.q if q is None else q,
@@ -54,14 +68,9 @@ class Loop:
         self.rt.on_wrench('tool0', sensor_wrench_from_f_W(m.R_W_ee, m.f_W), t)
 
     def step(self, feed: bool = True):
-        if feed:
-            self.feed()
-        out = self.rt.tick(self.t)
-        meas_before = self.meas
-        tau = np.zeros(self.model.n) if out.tau is None else out.tau
-        self.meas = self.sim.step(tau, DT)
-        self.k += 1
-        return out, meas_before
+        self.feeding = feed
+        meas = self.engine.step()
+        return self.engine.outputs[-1], meas
 
 
 def feed_same(rts, model, q, qdot, F, t, names=None, frame='tool0'):
@@ -73,7 +82,7 @@ def feed_same(rts, model, q, qdot, F, t, names=None, frame='tool0'):
 
 def started_pair(model, **overrides):
     """Two identical runtimes that have seen the same good inputs at t = 0."""
-    params = make_controller_params(model, overrides)
+    params = build_params(model, overrides)
     rts = [ControllerRuntime(model, params), ControllerRuntime(model, params)]
     kin = model.kinematics(Q0, np.zeros(2))
     F = sensor_wrench_from_f_W(kin.R_W_ee, np.array([0.0, -1.0, 0.0]))
@@ -83,15 +92,15 @@ def started_pair(model, **overrides):
 
 # ---------------------------------------------------------------- inputs
 def test_tick_before_any_input_is_waiting(model):
-    rt = ControllerRuntime(model, make_controller_params(model, {}))
+    rt = ControllerRuntime(model, build_params(model, {}))
     out = rt.tick(0.0)
     assert out.mode == 'waiting' and out.tau is None
     rt.on_joint_state(list(model.joint_names), Q0, np.zeros(2), 0.001)
     out = rt.tick(0.001)  # still no wrench
     assert out.mode == 'waiting' and out.tau is None
     rt.on_wrench('tool0', [0.0, 0.0, 0.0], 0.002)
-    out = rt.tick(0.002)
-    assert out.mode == 'running' and np.all(np.isfinite(out.tau))
+    out = rt.tick(0.002)  # no contact force yet: it approaches the surface
+    assert out.mode == 'approach' and np.all(np.isfinite(out.tau))
 
 
 def test_reordered_and_extra_joint_names(model):
@@ -107,7 +116,7 @@ def test_reordered_and_extra_joint_names(model):
 
 
 def test_missing_controlled_joint_raises_and_counts(model):
-    rt = ControllerRuntime(model, make_controller_params(model, {}))
+    rt = ControllerRuntime(model, build_params(model, {}))
     with pytest.raises(InputError, match='joint2'):
         rt.on_joint_state(['joint1', 'other'], [0.6, 0.9], [0.0, 0.0], 0.0)
     assert rt.counters['joint_state_dropped'] == 1
@@ -141,14 +150,14 @@ def test_bad_wrench_dropped_last_good_kept(model, bad):
 
 
 def test_unknown_wrench_frame_raises_naming_it(model):
-    rt = ControllerRuntime(model, make_controller_params(model, {}))
+    rt = ControllerRuntime(model, build_params(model, {}))
     with pytest.raises(InputError, match='camera_optical'):
         rt.on_wrench('camera_optical', [0.0, 1.0, 0.0], 0.0)
     assert rt.counters['wrench_dropped'] == 1
 
 
 def test_wrench_in_base_link_is_not_rotated(model):
-    params = make_controller_params(model, {'force_filter_hz': 0.0})
+    params = build_params(model, {'force_filter_hz': 0.0})
     rt_base, rt_tool = ControllerRuntime(model, params), ControllerRuntime(model, params)
     F = np.array([0.3, 1.2, 0.0])
     for rt, frame in ((rt_base, 'base_link'), (rt_tool, 'tool0')):
@@ -162,7 +171,7 @@ def test_wrench_in_base_link_is_not_rotated(model):
 
 
 def test_older_wrench_stamp_rejected(model):
-    params = make_controller_params(model, {'force_filter_hz': 0.0})
+    params = build_params(model, {'force_filter_hz': 0.0})
     rt = ControllerRuntime(model, params)
     rt.on_joint_state(list(model.joint_names), Q0, np.zeros(2), 1.0)
     rt.on_wrench('base_link', [0.0, 1.0, 0.0], 1.0)
@@ -174,8 +183,8 @@ def test_older_wrench_stamp_rejected(model):
 
 # ---------------------------------------------------------------- output order
 def test_tau_is_in_params_joint_order(model):
-    fwd = make_controller_params(model, {})
-    rev = make_controller_params(model, {'joints': ['joint2', 'joint1']})
+    fwd = build_params(model, {})
+    rev = build_params(model, {'joints': ['joint2', 'joint1']})
     assert model.joint_names == ('joint1', 'joint2')
     a, b = ControllerRuntime(model, fwd), ControllerRuntime(model, rev)
     kin = model.kinematics(Q0, np.zeros(2))
@@ -191,23 +200,25 @@ def test_tau_is_in_params_joint_order(model):
 # ---------------------------------------------------------------- closed loop and safe mode
 def test_closed_loop_through_runtime_tracks_the_sine(model):
     loop = Loop(model)
-    p = loop.params
-    sine = SineReference(p.ref_center, p.ref_amplitude, p.ref_omega)
-    n = p.n
+    rt, law = loop.params.runtime, loop.params.law
+    sine = SineReference(rt.ref_center, rt.ref_amplitude, rt.ref_omega)
+    n = law.n
     e_tan, e_f = [], []
     for _ in range(int(round(6.0 / DT))):
         t = loop.t
         out, meas = loop.step()
-        assert out.mode == 'running'
+        # the tool starts touching with 0 N: it approaches until the force is felt
+        assert out.mode == ('approach' if t < 0.1 and out.mode == 'approach' else 'running')
         if t >= 5.0:
             d = meas.p_W - sine(t).x_d_W  # the runtime's sine starts at the first tick (t = 0)
             e_tan.append(np.linalg.norm(d - (d @ n) * n))
-            e_f.append(float(meas.f_true_W @ n) - p.f_d)
+            e_f.append(float(meas.f_true_W @ n) - law.f_d)
     assert len(e_tan) >= 999
     assert math.sqrt(np.mean(np.square(e_tan))) <= 5e-4
     assert math.sqrt(np.mean(np.square(e_f))) <= 0.05
     assert loop.rt.counters['safe_mode_entries'] == 0
     assert loop.rt.counters['control_errors'] == 0
+    assert loop.rt.counters['approach_entries'] == 1
 
 
 @pytest.fixture(scope='module')
@@ -222,7 +233,7 @@ def outage(model):
         feed = not (t_stop - DT / 2 <= t < t_resume - DT / 2)
         xdot = model.kinematics(loop.meas.q, loop.meas.qdot).xdot
         out, _ = loop.step(feed=feed)
-        rows.append((t, out.mode, out.tau, out.counters, xdot))
+        rows.append((t, out.mode, out.tau, dict(loop.rt.counters), xdot))
     return loop, rows
 
 
@@ -232,11 +243,11 @@ def test_stale_inputs_enter_safe_mode_once(model, outage):
     assert safe, 'no safe mode'
     # last input at 2.999 s; safe mode once the inputs are older than state_timeout = 0.1 s
     assert safe[0][0] == pytest.approx(2.999 + 0.1, abs=1.5 * DT)
-    assert all(r[1] == 'running' for r in rows if r[0] < 3.099 - DT / 2)
+    assert all(r[1] == 'running' for r in rows if 0.1 < r[0] < 3.099 - DT / 2)
     assert rows[-1][3]['safe_mode_entries'] == 1
     for _, _, tau, counters, _ in safe:
         assert np.all(np.isfinite(tau))
-        assert np.all(np.abs(tau) <= loop.params.effort_limits)
+        assert np.all(np.abs(tau) <= loop.params.runtime.effort_limits)
         assert counters['safe_mode_entries'] == 1
 
 
@@ -265,4 +276,4 @@ def test_resume_returns_to_running_without_torque_jump(model, outage):
     assert all(r[1] == 'running' for r in rows[i:])
     jump = np.abs(first_run[2] - last_safe[2]).max()
     assert jump < 10.0, f'effort jumps by {jump:.1f} N m: {last_safe[2]} -> {first_run[2]}'
-    assert not np.any(np.abs(first_run[2]) >= loop.params.effort_limits)
+    assert not np.any(np.abs(first_run[2]) >= loop.params.runtime.effort_limits)

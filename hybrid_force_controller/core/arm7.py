@@ -31,7 +31,7 @@ def panda_urdf_path() -> Path:
 def panda_model(parameter_set: str = 'link_masses') -> RobotModel:
     """The Panda's 7 arm joints (fingers locked), z up, task frame ``panda_hand_tcp``."""
     return RobotModel.from_urdf(panda_urdf_path(), end_effector_link='panda_hand_tcp',
-                                joints=PANDA_JOINTS, gravity_W=(0.0, 0.0, -9.81),
+                                joints=PANDA_JOINTS, gravity_root=(0.0, 0.0, -9.81),
                                 parameter_set=parameter_set)
 
 

@@ -25,9 +25,17 @@ k_max``, is then dimensionally consistent and (with k_s = k_max) says this loop 
 better than 1/sqrt(2) at the stiffest surface.
 
 Adaptation units. Eq. (26) is applied to e expressed in the paper's force-rate units,
-``k_s e`` (N/s), i.e. ``theta_hat_dot = -Gamma^-1 Y_x^T (k_s e)``. That is (26) in SI units
-with ``Gamma/k_s``, so the Lyapunov function (27) keeps its form; with the paper's
-Gamma = 70 I it makes the estimates converge in about a second instead of minutes.
+``k_a e`` (N/s), i.e. ``theta_hat_dot = -Gamma^-1 Y_x^T (k_a e)``. That is (26) in SI units
+with ``Gamma/k_a``, so the Lyapunov function (27) keeps its form; with the paper's
+Gamma = 70 I it makes the estimates converge in seconds instead of minutes.
+
+Approach. Out of contact the runtime may replace the force loop along n by a position
+reference moving toward the surface (``ApproachRef``): the normal part of r becomes
+``v_n - lambda1 (n^T x - x_n)``, the same first-order tracking the tangential part uses.
+
+Time is an argument: ``dt`` is the time the newest state integrates theta_hat and h over
+(0 when no new state arrived since the last tick: the command is recomputed, nothing
+integrates). Effort limits are the runtime's (:class:`~.effort.EffortLimiter`).
 """
 from __future__ import annotations
 
@@ -36,31 +44,48 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .params import ControllerParams
+from .params import LawGains
 from .reference import Reference
-from .robot_model import RobotModel
+from .robot_model import RobotModel, TaskKinematics
 
-__all__ = ['ControlError', 'ControlOutput', 'HybridForceController', 'adapt_theta']
+__all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
+           'adapt_theta']
 
 
 class ControlError(ValueError):
     """The control law met non-finite or inconsistent input it cannot act on."""
 
 
+class ApproachRef(NamedTuple):
+    """Normal reference of an approach: position ``x_n = n^T x_ref`` (m), velocity and
+    acceleration along n, base frame."""
+
+    x_n: float
+    v_n: float
+    a_n: float
+
+
 class ControlOutput(NamedTuple):
-    """One tick's result: the clamped effort, e (task coordinates, ``model.task_axes``),
-    theta_hat after the update, the force integral h and whether a limit was active."""
+    """One tick's result: the effort (finite, before the runtime's limits), e (task
+    coordinates, ``model.task_axes``), the kinematics it used, theta_hat after the update,
+    the force integral h and the normal part of r (m/s)."""
 
     tau: np.ndarray
     e: np.ndarray
+    kin: TaskKinematics
     theta_hat: np.ndarray
     h: float
-    saturated: bool
+    r_n: float
 
 
-def in_contact(f_n: float, f_d: float) -> bool:
-    """Contact test on the measured normal force: ``f_n > max(0.05 N, 0.1 f_d)``."""
-    return f_n > max(0.05, 0.1 * f_d)
+class _Derived(NamedTuple):
+    """What a gain set fixes for every tick (computed once in ``set_gains``)."""
+
+    gains: LawGains
+    n: np.ndarray          # the normal in task coordinates
+    G: np.ndarray          # [r; rdot] = G z + force terms (see _linear_part)
+    Gamma_inv: np.ndarray
+    c: float               # 1 / k_s
 
 
 def small_inverse(A: np.ndarray) -> np.ndarray:
@@ -89,27 +114,31 @@ def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e
 class HybridForceController:
     """Adaptive hybrid force/motion controller for one arm model.
 
-    ``set_params`` swaps the gains atomically (the next ``step`` uses the new set);
+    ``set_gains`` swaps the gains atomically (the next ``step`` uses the new set);
     ``step`` computes one command from the latest state.
     """
 
-    def __init__(self, model: RobotModel, params: ControllerParams) -> None:
+    def __init__(self, model: RobotModel, gains: LawGains) -> None:
         self.model = model
         self._project = model.parameter_set.project
         self._eye_n = np.eye(model.n)
-        self.set_params(params)
+        self._d: _Derived | None = None
+        self.set_gains(gains)
         self.reset()
 
-    def set_params(self, params: ControllerParams) -> None:
-        """Install a validated parameter set; derived matrices are computed here, once."""
+    @property
+    def gains(self) -> LawGains:
+        return self._d.gains
+
+    def set_gains(self, gains: LawGains) -> None:
+        """Install a validated gain set; derived matrices are computed here, once."""
         ax = list(self.model.task_axes)
-        n = params.n[ax]
-        if hasattr(self, 'params') and not np.array_equal(params.n, self.params.n):
+        n = gains.n[ax]
+        if self._d is not None and not np.array_equal(gains.n, self._d.gains.n):
             self.h = 0.0  # the force integral belongs to the old normal
         P_t = np.eye(len(ax)) - np.outer(n, n)
-        self._derived = (params, n, self._linear_part(P_t, n, params.lambda1),
-                         np.linalg.inv(params.Gamma), 1.0 / params.k_s)
-        self.params = params
+        self._d = _Derived(gains, n, self._linear_part(P_t, n, gains.lambda1),
+                           np.linalg.inv(gains.Gamma), 1.0 / gains.k_s)
 
     def _linear_part(self, P_t: np.ndarray, n: np.ndarray, l1: float) -> np.ndarray:
         """G with ``G z = [r; rdot]`` minus their force terms, ``z = (x, xdot, x_d, xdot_d,
@@ -124,26 +153,39 @@ class HybridForceController:
 
     def reset(self, theta_hat: np.ndarray | None = None) -> None:
         """Restart the adaptation (``theta_hat0`` by default) and the force integral."""
-        p = self.params
-        self.theta_hat = (p.theta_hat0 if theta_hat is None else np.asarray(theta_hat)).copy()
+        g = self.gains
+        self.theta_hat = (g.theta_hat0 if theta_hat is None else np.asarray(theta_hat)).copy()
         self.h = 0.0
-        self.tau_prev: np.ndarray | None = None
-        self.last_kin = None  # kinematics of the last step (for the caller's outputs)
 
-    def reference_velocity(self, kin, ref: Reference, f: np.ndarray
-                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """r and rdot from eqs. (8) and (11) (scaled form, module docstring); also e, df_n."""
-        p, n, G, _, c = self._derived
-        m = len(n)
-        df_n = float(n @ f) - p.f_d
-        l1, l2 = p.lambda1, p.lambda2
-        lin = G @ np.concatenate((kin.x, kin.xdot, ref.x_d_W, ref.xdot_d_W, ref.xddot_d_W))
-        r = lin[:m] - (c * l1 * df_n + l2 * self.h) * n
-        rdot = lin[m:] - (l2 * df_n) * n
-        return r, rdot, kin.xdot - r, df_n
+    def reference_velocity(self, kin: TaskKinematics, ref: Reference, f: np.ndarray,
+                           approach: ApproachRef | None = None,
+                           r_bias: tuple[float, float] = (0.0, 0.0)
+                           ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """r and rdot from eqs. (8) and (11) (scaled form, module docstring), df_n and the
+        normal part of r. With ``approach`` the normal part tracks that reference instead
+        of the force loop; ``r_bias`` (m/s, m/s^2) is added to the normal part of r and
+        rdot (the runtime's hand-over from an approach)."""
+        d = self._d
+        g, n, m = d.gains, d.n, len(d.n)
+        df_n = float(n @ f) - g.f_d
+        l1 = g.lambda1
+        lin = d.G @ np.concatenate((kin.x, kin.xdot, ref.x_d_W, ref.xdot_d_W, ref.xddot_d_W))
+        if approach is None:
+            r_n = self.force_loop_r_n(float(n @ f)) + r_bias[0]
+            rdot_n = -g.lambda2 * df_n + r_bias[1]
+        else:
+            r_n = approach.v_n - l1 * (float(n @ kin.x) - approach.x_n)
+            rdot_n = approach.a_n + l1 * approach.v_n
+        return lin[:m] + r_n * n, lin[m:] + rdot_n * n, df_n, r_n
+
+    def force_loop_r_n(self, f_n: float) -> float:
+        """Normal part of r in the force loop, ``-(c lambda1 (f_n - f_d) + lambda2 h)``."""
+        d = self._d
+        return -(d.c * d.gains.lambda1 * (f_n - d.gains.f_d) + d.gains.lambda2 * self.h)
 
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
-             dt: float) -> ControlOutput:
+             dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
+             r_bias: tuple[float, float] = (0.0, 0.0)) -> ControlOutput:
         """One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
 
         Parameters
@@ -151,43 +193,52 @@ class HybridForceController:
         q, qdot : joint positions and velocities, in ``model.joint_names`` order.
         f_W : (3,) force the tool exerts on the surface, base frame, N (filtered).
         ref : desired motion at this tick.
-        dt : time since the previous tick, s (> 0).
+        dt : time theta_hat and h integrate over, s (>= 0; 0: nothing integrates).
+        in_contact : the runtime's contact state (anti-windup of h).
+        approach : normal reference of an approach (None: the force loop).
+        r_bias : added to the normal part of r and rdot in the force loop (m/s, m/s^2).
 
-        Returns ``tau = J^T u`` with ``u = Y_x theta_hat - K_D e + f`` clamped to the
-        effort limits (and the per-tick rate limit when set).
+        Returns ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e)`` (eq. 5 in joint space).
         """
-        if not (dt > 0.0 and math.isfinite(dt)):
-            raise ControlError(f'dt must be finite and > 0, got {dt}')
-        p, n, _, Gamma_inv, _ = self._derived
-        model = self.model
-        kin = self.last_kin = model.kinematics(q, qdot)
+        if not (dt >= 0.0 and math.isfinite(dt)):
+            raise ControlError(f'dt must be finite and >= 0, got {dt}')
+        d = self._d
+        g, model = d.gains, self.model
+        kin = model.kinematics(q, qdot)
         f = f_W[model.task_index]
-        r, rdot, e, df_n = self.reference_velocity(kin, ref, f)
+        r, rdot, df_n, r_n = self.reference_velocity(kin, ref, f, approach, r_bias)
+        e = kin.xdot - r
         J_pinv, N = (self._pinv(q, kin.J_ee) if model.redundant
                      else (small_inverse(kin.J_ee), None))
         qdot_r = J_pinv @ r
         qddot_r = J_pinv @ (rdot - kin.Jdot_ee @ qdot_r)
         Y_q, tau_0 = model.regressor_affine(q, qdot, qdot_r, qddot_r)
         s = qdot - qdot_r  # = J^-1 e for a square J
-        tau = Y_q @ self.theta_hat + kin.J_ee.T @ (f - p.k_d * e)
+        tau = Y_q @ self.theta_hat + kin.J_ee.T @ (f - g.k_d * e)
         if tau_0 is not None:
             tau += tau_0
         if N is not None:  # null-space posture damping
-            tau -= p.k_null * (N.T @ (N @ s))
+            tau -= g.k_null * (N.T @ (N @ s))
         if not math.isfinite(tau.sum()):
             raise ControlError('control law produced a non-finite effort')
-        tau_out = self.limit(tau)
-        # eq. (26) in joint space: Y_x^T e = Y_q^T J^-1 e = Y_q^T s (square J)
-        self.theta_hat = adapt_theta(self.theta_hat, Gamma_inv, Y_q, p.k_s * s, dt,
-                                     p.theta_min, p.theta_max)
-        if self._project is not None:
-            self.theta_hat = self._project(self.theta_hat)
-        if in_contact(df_n + p.f_d, p.f_d):  # anti-windup: h frozen while out of contact
-            self.h = min(max(self.h + df_n * dt, -p.integral_limit), p.integral_limit)
-        else:  # ... and never holding a retreat (h > 0 after a spike or a hard re-contact)
+        if dt > 0.0:
+            self._integrate(Y_q, s, df_n, dt, in_contact and approach is None)
+        return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n)
+
+    def _integrate(self, Y_q: np.ndarray, s: np.ndarray, df_n: float, dt: float,
+                   force_loop: bool) -> None:
+        """Eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and the force
+        integral h, eq. (20), frozen out of contact (anti-windup) and never holding a
+        retreat (h > 0) there."""
+        d = self._d
+        g = d.gains
+        theta = adapt_theta(self.theta_hat, d.Gamma_inv, Y_q, g.k_a * s, dt, g.theta_min,
+                            g.theta_max)
+        self.theta_hat = theta if self._project is None else self._project(theta)
+        if force_loop:
+            self.h = min(max(self.h + df_n * dt, -g.integral_limit), g.integral_limit)
+        else:
             self.h = min(self.h, 0.0)
-        return ControlOutput(tau_out, e, self.theta_hat,
-                             self.h, bool((tau_out != tau).any()))
 
     def _pinv(self, q: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1`` and ``N``.
@@ -201,13 +252,3 @@ class HybridForceController:
         JM = J @ M_inv
         J_pinv = JM.T @ np.linalg.inv(JM @ J.T)
         return J_pinv, self._eye_n - J_pinv @ J
-
-    def limit(self, tau: np.ndarray) -> np.ndarray:
-        """Clamp to the per-joint effort limits and the optional per-tick rate limit."""
-        p = self.params
-        if p.max_effort_rate > 0.0 and self.tau_prev is not None:
-            tau = np.minimum(np.maximum(tau, self.tau_prev - p.max_effort_rate),
-                             self.tau_prev + p.max_effort_rate)
-        tau = np.minimum(np.maximum(tau, -p.effort_limits), p.effort_limits)
-        self.tau_prev = tau
-        return tau

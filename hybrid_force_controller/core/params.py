@@ -1,8 +1,11 @@
-"""The one parameter schema of the controller, its validation and the frozen dataclass.
+"""The one parameter schema of the controller, its validation and the frozen parameters.
 
 Every parameter has a type, a default, a description and bounds here; the ROS node
 declares them from :data:`CONTROLLER_SCHEMA` and ``config/*.yaml`` only overrides values.
-Pure Python + numpy.
+:func:`build_params` validates a full set once and freezes it into
+:class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
+(26), (29) of [1]) and the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
+filter, reference, timeouts, approach, sensor plausibility). Pure Python + numpy.
 """
 from __future__ import annotations
 
@@ -12,8 +15,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'ParamSpec', 'ParameterValidationError',
-           'build_controller_params', 'check_stability', 'schema_defaults']
+__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'LawGains', 'ParamSpec',
+           'ParameterValidationError', 'RuntimeConfig', 'build_params', 'check_stability',
+           'schema_defaults']
 
 
 class ParameterValidationError(ValueError):
@@ -23,7 +27,8 @@ class ParameterValidationError(ValueError):
 @dataclass(frozen=True)
 class ParamSpec:
     """One parameter: ROS type (``double``, ``integer``, ``double_array``, ``string_array``,
-    ``string``), default, description and closed bounds (``None``: unbounded)."""
+    ``string``, ``bool``), default, description, closed bounds (``None``: unbounded) and
+    the group it configures (``law`` or ``runtime``)."""
 
     name: str
     kind: str
@@ -33,6 +38,11 @@ class ParamSpec:
     hi: float | None = None
     positive: bool = False
     read_only: bool = False
+    group: str = 'runtime'
+
+
+def _law(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='law', **kwargs)
 
 
 _S = ParamSpec
@@ -41,35 +51,42 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        read_only=True),
     _S('joints', 'string_array', ['joint1', 'joint2'],
        'Controlled joints, in the order of the effort command.', read_only=True),
-    _S('lambda1', 'double', 40.0, 'lambda1 of eq. (11), 1/s.', 0.0, 1e4, positive=True),
-    _S('lambda2', 'double', 0.1, 'lambda2 of eq. (11), force integral gain, m/(N s^2).', 0.0, 1e4,
-       positive=True),
-    _S('gamma', 'double_array', [70.0],
-       'Gamma of eq. (26) (acting on k_s e): one value (times I), p diagonal entries or a row-major p x p SPD matrix.'),
-    _S('n', 'double_array', [0.0, -1.0, 0.0],
-       'Contact normal in the base frame (into the surface); normalised on set.'),
-    _S('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.', 0.0, 1e3),
-    _S('k_d', 'double', 200.0, 'K_D of eq. (5), N s/m.', 0.0, 1e5, positive=True),
-    _S('k_null', 'double', 2.0,
-       'Null-space posture damping of redundant arms, N m s/rad.', 0.0, 1e5),
-    _S('k_max', 'double', 6000.0, 'Upper bound of the surface stiffness (eq. 29), N/m.',
-       0.0, 1e8, positive=True),
-    _S('k_s', 'double', 6000.0,
-       'Stiffness scaling the S-part of eq. (11) to a velocity (c = 1/k_s), N/m.',
-       0.0, 1e8, positive=True),
-    _S('theta_hat0', 'double_array', [],
-       'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',
-       read_only=True),
-    _S('theta_min', 'double_array', [], 'Lower projection bounds of theta_hat (empty: the parameter set default).'),
-    _S('theta_max', 'double_array', [], 'Upper projection bounds of theta_hat (empty: the parameter set default).'),
+    _law('lambda1', 'double', 40.0, 'lambda1 of eq. (11), 1/s.', 0.0, 1e4, positive=True),
+    _law('lambda2', 'double', 0.1, 'lambda2 of eq. (11), force integral gain, m/(N s^2).',
+         0.0, 1e4, positive=True),
+    _law('gamma', 'double_array', [70.0],
+         'Gamma of eq. (26) (acting on k_a e): one value (times I), p diagonal entries or a '
+         'row-major p x p SPD matrix.'),
+    _law('n', 'double_array', [0.0, -1.0, 0.0],
+         'Contact normal in the base frame (into the surface); normalised on set.'),
+    _law('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.',
+         0.0, 1e3),
+    _law('k_d', 'double', 60.0, 'K_D of eq. (5), N s/m.', 0.0, 1e5, positive=True),
+    _law('k_null', 'double', 2.0,
+         'Null-space posture damping of redundant arms, N m s/rad.', 0.0, 1e5),
+    _law('k_max', 'double', 6000.0, 'Upper bound of the surface stiffness (eq. 29), N/m.',
+         0.0, 1e8, positive=True),
+    _law('k_s', 'double', 6000.0,
+         'Stiffness scaling the S-part of eq. (11) to a velocity (c = 1/k_s), N/m.',
+         0.0, 1e8, positive=True),
+    _law('k_a', 'double', 1500.0,
+         'Stiffness converting e to the force-rate units of the adaptation (26), N/m.',
+         0.0, 1e8, positive=True),
+    _law('theta_hat0', 'double_array', [],
+         'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',
+         read_only=True),
+    _law('theta_min', 'double_array', [],
+         'Lower projection bounds of theta_hat (empty: the parameter set default).'),
+    _law('theta_max', 'double_array', [],
+         'Upper projection bounds of theta_hat (empty: the parameter set default).'),
+    _law('integral_limit', 'double', 2.0,
+         'Anti-windup bound of |h| (eq. 20), N s.', 0.0, 1e6, positive=True),
     _S('effort_limits', 'double_array', [],
        'Per-joint effort limits, N m (empty: from the URDF).'),
     _S('max_effort_rate', 'double', 0.0,
        'Largest effort change per tick, N m (0: no rate limit).', 0.0, 1e6),
     _S('force_filter_hz', 'double', 200.0, 'Cut-off of the force low-pass filter, Hz (0: off).',
        0.0, 1e5),
-    _S('integral_limit', 'double', 2.0,
-       'Anti-windup bound of |h| (eq. 20), N s.', 0.0, 1e6, positive=True),
     _S('ref_center', 'double_array', [1.0, 1.6, 0.0], 'Reference centre, base frame, m.'),
     _S('ref_amplitude', 'double_array', [0.1, 0.0, 0.0], 'Reference sine amplitude, m.'),
     _S('ref_omega', 'double', 1.0, 'Reference sine frequency, rad/s.', 0.0, 1e3),
@@ -77,6 +94,27 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        'Blend from the start position into the reference over this time, s.', 0.0, 60.0),
     _S('state_timeout', 'double', 0.1,
        'Inputs older than this put the controller in safe mode, s.', 0.0, 10.0, positive=True),
+    _S('max_integration_dt', 'double', 0.005,
+       'Longest time one new state may integrate theta_hat and h (a late sample after a '
+       'gap integrates only this much), s.', 0.0, 1.0, positive=True),
+    _S('min_delay_margin', 'double', 0.005,
+       'Smallest loop delay the gains must tolerate (margin.py, at the current pose); a '
+       'set leaving less is refused, s (0: no check).', 0.0, 1.0),
+    _S('approach_speed', 'double', 0.02,
+       'Out of contact the tool moves into the surface at this speed, m/s (0: no approach, '
+       'only the force loop).', 0.0, 1.0),
+    _S('approach_limit', 'double', 0.05,
+       'Largest approach travel along n; then the arm holds and reports that the surface '
+       'was not found, m.', 0.0, 10.0, positive=True),
+    _S('wrench_limit', 'double', 100.0,
+       'Largest plausible force reading, N; larger readings (or a saturated sensor) are '
+       'dropped.', 0.0, 1e6, positive=True),
+    _S('wrench_rate_limit', 'double', 20000.0,
+       'Largest plausible change of the force reading, N/s; faster changes are dropped.',
+       0.0, 1e9, positive=True),
+    _S('reject_frozen_wrench', 'bool', True,
+       'Treat bit-identical force readings as stale (a frozen sensor leads to safe mode '
+       'after state_timeout).'),
 )
 _SPECS = {s.name: s for s in CONTROLLER_SCHEMA}
 
@@ -97,11 +135,9 @@ MODEL_SCHEMA: tuple[ParamSpec, ...] = (
 
 
 @dataclass(frozen=True)
-class ControllerParams:
-    """Validated, frozen controller parameters (see :data:`CONTROLLER_SCHEMA`)."""
+class LawGains:
+    """Validated gains of the control law (the ``law`` group of the schema)."""
 
-    rate_hz: float
-    joints: tuple[str, ...]
     lambda1: float
     lambda2: float
     Gamma: np.ndarray
@@ -111,18 +147,42 @@ class ControllerParams:
     k_null: float
     k_max: float
     k_s: float
+    k_a: float
     theta_hat0: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
+    integral_limit: float
+
+
+@dataclass(frozen=True)
+class RuntimeConfig:
+    """Validated configuration of the runtime around the law (the ``runtime`` group)."""
+
+    rate_hz: float
+    joints: tuple[str, ...]
     effort_limits: np.ndarray
     max_effort_rate: float
     force_filter_hz: float
-    integral_limit: float
     ref_center: np.ndarray
     ref_amplitude: np.ndarray
     ref_omega: float
     ref_blend_time: float
     state_timeout: float
+    max_integration_dt: float
+    min_delay_margin: float
+    approach_speed: float
+    approach_limit: float
+    wrench_limit: float
+    wrench_rate_limit: float
+    reject_frozen_wrench: bool
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """One validated, frozen parameter set: the law's gains and the runtime's configuration."""
+
+    law: LawGains
+    runtime: RuntimeConfig
 
 
 def schema_defaults() -> dict[str, Any]:
@@ -155,9 +215,20 @@ def _scalar(spec: ParamSpec, value: Any) -> float:
     return x
 
 
+def _bool(spec: ParamSpec, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ParameterValidationError(f'{spec.name} must be true or false, got {value!r}')
+    return value
+
+
 def _array(name: str, value: Any, sizes: Sequence[int] | None = None) -> np.ndarray:
+    """A finite float array; ``None`` (an empty array as a params file gives it) is empty."""
+    items = [] if value is None else value
     try:
-        arr = np.asarray(list(value), dtype=float)
+        items = list(items)
+        if any(isinstance(x, bool) for x in items):
+            raise TypeError('booleans are not numbers')
+        arr = np.asarray(items, dtype=float)
     except (TypeError, ValueError):
         raise ParameterValidationError(f'{name} must be an array of numbers, got {value!r}') from None
     if sizes is not None and arr.size not in sizes:
@@ -192,47 +263,66 @@ def _normal(value: Any, task_axes: Sequence[int]) -> np.ndarray:
     return n
 
 
-def build_controller_params(values: Mapping[str, Any], *, p: int, n_joints: int,
-                            task_axes: Sequence[int], theta_nominal: np.ndarray,
-                            urdf_effort_limits: np.ndarray,
-                            theta_bounds: tuple[np.ndarray, np.ndarray] | None = None
-                            ) -> ControllerParams:
-    """Validate a full set of values against the schema and the model; freeze them.
+def _theta(v: Mapping[str, Any], model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """theta_hat0 and its projection bounds (empty: the parameter set's)."""
+    p = len(model.theta_nominal)
+    theta0 = _array('theta_hat0', v['theta_hat0'], (0, p))
+    theta0 = model.theta_nominal.copy() if theta0.size == 0 else theta0
+    lo = _array('theta_min', v['theta_min'], (0, p))
+    hi = _array('theta_max', v['theta_max'], (0, p))
+    ps = model.parameter_set
+    lo = np.asarray(ps.theta_min, dtype=float) if lo.size == 0 else lo
+    hi = np.asarray(ps.theta_max, dtype=float) if hi.size == 0 else hi
+    if np.any(lo >= hi) or np.any(theta0 < lo) or np.any(theta0 > hi):
+        raise ParameterValidationError('need theta_min < theta_max and theta_hat0 inside them')
+    return theta0, lo, hi
 
-    ``theta_bounds`` are the default projection bounds (the parameter set's); without
-    them ``[0, 10 theta_nominal]``. Raises :class:`ParameterValidationError` with the
-    reason on the first problem.
-    """
-    unknown = set(values) - set(_SPECS)
-    if unknown:
-        raise ParameterValidationError(f'unknown parameters: {sorted(unknown)}')
-    v = {**schema_defaults(), **values}
-    s = {name: _scalar(_SPECS[name], v[name]) for name, spec in _SPECS.items()
-         if spec.kind == 'double'}
+
+def _law_gains(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> LawGains:
     check_stability(s['lambda1'], s['lambda2'], s['k_max'])
+    theta0, lo, hi = _theta(v, model)
+    return LawGains(
+        lambda1=s['lambda1'], lambda2=s['lambda2'],
+        Gamma=_gamma(v['gamma'], len(model.theta_nominal)),
+        n=_normal(v['n'], model.task_axes), f_d=s['f_d'], k_d=s['k_d'], k_null=s['k_null'],
+        k_max=s['k_max'], k_s=s['k_s'], k_a=s['k_a'], theta_hat0=theta0, theta_min=lo,
+        theta_max=hi, integral_limit=s['integral_limit'])
+
+
+def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> RuntimeConfig:
+    n_joints = model.n
     joints = tuple(str(j) for j in v['joints'])
     if len(joints) != n_joints or len(set(joints)) != n_joints:
         raise ParameterValidationError(f'joints must name {n_joints} distinct joints, got {joints}')
-    theta0 = _array('theta_hat0', v['theta_hat0'], (0, p))
-    theta0 = theta_nominal.copy() if theta0.size == 0 else theta0
-    lo = _array('theta_min', v['theta_min'], (0, p))
-    hi = _array('theta_max', v['theta_max'], (0, p))
-    lo_0, hi_0 = theta_bounds or (np.zeros(p), 10.0 * np.abs(theta_nominal))
-    lo = np.asarray(lo_0, dtype=float) if lo.size == 0 else lo
-    hi = np.asarray(hi_0, dtype=float) if hi.size == 0 else hi
-    if np.any(lo >= hi) or np.any(theta0 < lo) or np.any(theta0 > hi):
-        raise ParameterValidationError('need theta_min < theta_max and theta_hat0 inside them')
+    unknown = [j for j in joints if j not in model.joint_names]
+    if unknown:
+        raise ParameterValidationError(f'joints not in the robot model: {unknown}')
     limits = _array('effort_limits', v['effort_limits'], (0, n_joints))
-    limits = np.asarray(urdf_effort_limits, dtype=float) if limits.size == 0 else limits
+    limits = np.asarray(model.effort_limits, dtype=float) if limits.size == 0 else limits
     if limits.shape != (n_joints,) or np.any(limits <= 0):
         raise ParameterValidationError(f'effort_limits must be {n_joints} values > 0')
-    return ControllerParams(
-        rate_hz=s['rate_hz'], joints=joints, lambda1=s['lambda1'], lambda2=s['lambda2'],
-        Gamma=_gamma(v['gamma'], p), n=_normal(v['n'], task_axes), f_d=s['f_d'],
-        k_d=s['k_d'], k_null=s['k_null'], k_max=s['k_max'], k_s=s['k_s'], theta_hat0=theta0, theta_min=lo,
-        theta_max=hi, effort_limits=limits, max_effort_rate=s['max_effort_rate'],
-        force_filter_hz=s['force_filter_hz'], integral_limit=s['integral_limit'],
+    return RuntimeConfig(
+        rate_hz=s['rate_hz'], joints=joints, effort_limits=limits,
+        max_effort_rate=s['max_effort_rate'], force_filter_hz=s['force_filter_hz'],
         ref_center=_array('ref_center', v['ref_center'], (3,)),
         ref_amplitude=_array('ref_amplitude', v['ref_amplitude'], (3,)),
         ref_omega=s['ref_omega'], ref_blend_time=s['ref_blend_time'],
-        state_timeout=s['state_timeout'])
+        state_timeout=s['state_timeout'], max_integration_dt=s['max_integration_dt'],
+        min_delay_margin=s['min_delay_margin'], approach_speed=s['approach_speed'], approach_limit=s['approach_limit'],
+        wrench_limit=s['wrench_limit'], wrench_rate_limit=s['wrench_rate_limit'],
+        reject_frozen_wrench=s['reject_frozen_wrench'])
+
+
+def build_params(model: Any, values: Mapping[str, Any] | None = None) -> ControllerParams:
+    """Validate a set of values (missing ones take the defaults) against the schema and
+    ``model`` (a :class:`~.robot_model.RobotModel`: joints, task axes, parameter set, URDF
+    effort limits) and freeze it. Raises :class:`ParameterValidationError` with the reason
+    on the first problem."""
+    values = {} if values is None else values
+    unknown = set(values) - set(_SPECS)
+    if unknown:
+        raise ParameterValidationError(f'unknown parameters: {sorted(unknown)}')
+    v = {**schema_defaults(), 'joints': list(model.joint_names), **values}
+    s = {name: _scalar(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'double'}
+    s.update({name: _bool(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'bool'})
+    return ControllerParams(law=_law_gains(v, s, model), runtime=_runtime_config(v, s, model))

@@ -4,7 +4,9 @@ Everything here is pure numpy + pinocchio. Reference [1] is Jafari et al., "An A
 Hybrid Force/Motion Control Design for Robot Manipulators Interacting in Constrained
 Motion with Unknown Non-Rigid Environments" (the paper in ``shared/seeds``).
 
-Frames: ``_W`` is the base (world) frame of the URDF root; the task coordinates are the
+Frames: ``_W`` is ``base_link``, the world of the task space (by default the URDF root),
+in which every position, force and normal of the controller is expressed; ``_root`` is
+the URDF root (pinocchio's world: gravity, ``T_root_ee``). The task coordinates are the
 translational coordinates of the end-effector frame origin along the base axes that the
 arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y plane,
 ``(0, 1, 2)`` for a spatial arm).
@@ -64,20 +66,20 @@ class RobotModel:
     expressed in ``base_link`` (default: the URDF root), which must be fixed to the root.
     """
 
-    def __init__(self, model: pin.Model, end_effector_link: str, gravity_W: np.ndarray, *,
+    def __init__(self, model: pin.Model, end_effector_link: str, gravity_root: np.ndarray, *,
                  parameter_set: str = 'link_masses', base_link: str | None = None) -> None:
         if not model.existFrame(end_effector_link):
             raise ModelError(f"end-effector link '{end_effector_link}' is not in the model")
         if model.nq != model.nv:
             raise ModelError('only revolute and prismatic joints are supported (nq != nv)')
-        model.gravity.linear = np.asarray(gravity_W, dtype=float)
+        model.gravity.linear = np.asarray(gravity_root, dtype=float)
         self.model = model
         self.data = model.createData()
         self.frame_id = model.getFrameId(end_effector_link)
         self.end_effector_link = end_effector_link
         self.root_link = model.frames[1].name if len(model.frames) > 1 else 'universe'
         self.base_link = base_link or self.root_link
-        self._R_BW = self._base_rotation(self.base_link)
+        self._R_W_root = self._base_rotation(self.base_link)
         self.joint_names = tuple(model.names[i] for i in range(1, model.njoints))
         self.n = model.nv
         try:
@@ -102,20 +104,20 @@ class RobotModel:
     @classmethod
     def from_urdf(cls, urdf: str | Path | None = None, *, end_effector_link: str = 'tool0',
                   base_link: str | None = None, joints: Sequence[str] | None = None,
-                  gravity_W: Sequence[float] | None = None,
+                  gravity_root: Sequence[float] | None = None,
                   parameter_set: str = 'link_masses') -> 'RobotModel':
         """Load a URDF file path or URDF XML string (``None``: the paper's 2-link arm).
 
         ``joints`` selects the controlled joints (the others are locked at their neutral
-        position clipped into their limits). ``gravity_W`` is in the URDF root frame; the
+        position clipped into their limits). ``gravity_root`` is in the URDF root frame; the
         default, 9.81 m/s^2 along -y, is the paper's (a z-up robot needs (0, 0, -9.81)).
         """
         src = default_urdf_path() if urdf is None else urdf
         model = _parse(src)
         if joints:
             model = _reduce(model, joints)
-        gravity_W = (0.0, -9.81, 0.0) if gravity_W is None else gravity_W
-        return cls(model, end_effector_link, np.asarray(gravity_W, dtype=float),
+        gravity_root = (0.0, -9.81, 0.0) if gravity_root is None else gravity_root
+        return cls(model, end_effector_link, np.asarray(gravity_root, dtype=float),
                    parameter_set=parameter_set, base_link=base_link)
 
     @classmethod
@@ -127,7 +129,7 @@ class RobotModel:
         return cls.from_urdf(values.get('robot_description') or None,
                              end_effector_link=values.get('end_effector_link') or 'tool0',
                              base_link=values.get('base_link') or None, joints=joints,
-                             gravity_W=gravity,
+                             gravity_root=gravity,
                              parameter_set=values.get('parameter_set') or 'link_masses')
 
     # ------------------------------------------------------------------ set-up helpers
@@ -139,9 +141,9 @@ class RobotModel:
         if frame.parentJoint != 0:
             raise ModelError(f"base link '{base_link}' moves with joint "
                              f"'{self.model.names[frame.parentJoint]}'; it must be fixed")
-        self._p_WB = frame.placement.translation.copy()
+        self._p_root_W = frame.placement.translation.copy()
         R = frame.placement.rotation
-        identity = np.allclose(R, np.eye(3)) and np.allclose(self._p_WB, 0.0)
+        identity = np.allclose(R, np.eye(3)) and np.allclose(self._p_root_W, 0.0)
         return None if identity else R.T.copy()
 
     def _detect_task_axes(self) -> tuple[int, ...]:
@@ -153,7 +155,7 @@ class RobotModel:
             q = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi))
             J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id,
                                          _LWA).reshape(6, -1)[:3]
-            J = J if self._R_BW is None else self._R_BW @ J
+            J = J if self._R_W_root is None else self._R_W_root @ J
             span += np.abs(J).sum(axis=1)
         axes = tuple(int(i) for i in np.flatnonzero(span > 1e-9 * max(span.max(), 1.0)))
         if not axes or len(axes) > self.n:
@@ -171,12 +173,12 @@ class RobotModel:
         """
         model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
         pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
-        T_W_ee = pin.updateFramePlacement(model, data, fid)
+        T_root_ee = pin.updateFramePlacement(model, data, fid)
         J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
         Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[:3]
-        p_W, R, J = self.base_from_root(T_W_ee.translation, T_W_ee.rotation, J)
-        if self._R_BW is not None:  # express everything in base_link
-            Jdot = self._R_BW @ Jdot
+        p_W, R, J = self.base_from_root(T_root_ee.translation, T_root_ee.rotation, J)
+        if self._R_W_root is not None:  # express everything in base_link
+            Jdot = self._R_W_root @ Jdot
         J, Jdot = J[ax], Jdot[ax]
         return TaskKinematics(p_W, R, p_W[ax], J @ qdot, J, Jdot)
 
@@ -259,10 +261,10 @@ class RobotModel:
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position, rotation and (3 x n) Jacobian of a frame, from the URDF root frame
         into ``base_link``."""
-        if self._R_BW is None:
+        if self._R_W_root is None:
             return p, R, J
-        R_BW = self._R_BW
-        return R_BW @ (p - self._p_WB), R_BW @ R, R_BW @ J
+        R_W_root = self._R_W_root
+        return R_W_root @ (p - self._p_root_W), R_W_root @ R, R_W_root @ J
 
     def _require_square(self) -> None:
         if self.redundant:
@@ -278,7 +280,7 @@ class RobotModel:
             fid = self._frame_ids[frame] = self.model.getFrameId(frame)
         pin.forwardKinematics(self.model, self.data, q)
         R = pin.updateFramePlacement(self.model, self.data, fid).rotation
-        return R.copy() if self._R_BW is None else self._R_BW @ R
+        return R.copy() if self._R_W_root is None else self._R_W_root @ R
 
     def forward_dynamics(self, q: np.ndarray, qdot: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Joint accelerations from pinocchio's ABA (uses the model's true inertias)."""

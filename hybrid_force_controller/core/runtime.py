@@ -1,177 +1,211 @@
 """What the controller node does between messages, as plain arrays (no rclpy here).
 
 The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
-converts the result back. This module owns the latest inputs, their staleness, the force
-filter, the reference, the safe mode and the counters; the control law itself is
-:class:`~hybrid_force_controller.core.control_law.HybridForceController`. Times are seconds on
-the caller's clock (node time, so ``use_sim_time`` works); nothing here reads a clock.
+converts the result back; the offline engine (engine.py) drives the same object. The
+runtime owns the latest inputs (inputs.py: checked, plausible), their staleness, the force
+filter, the reference, the contact state and an explicit mode (:class:`Mode`):
 
-Safe mode (inputs older than ``state_timeout``) holds the arm: ``tau = g_hat(q) + J^T f``
-(adapted gravity torque plus the last contact force, so the arm stays where it is against
-the surface), and, only while the joint velocity is fresh, ``- k_d J^T J qdot``
-(``- k_null qdot`` too on redundant arms); a stale velocity is never damped, since it would
-act as a constant push. Clamped to the effort limits; theta_hat and h are frozen. On
-recovery the reference restarts at the arm's position and velocity and blends back into
-the sine over ``ref_blend_time``, so the effort does not jump; a parameter change of the
-reference or a new held point blends the same way (reference.BlendedReference).
+* ``WAITING``: no joint state or wrench yet (after start-up or a clock restart);
+* ``RUNNING``: the law of [1] with its force loop along n (control_law.py);
+* ``APPROACH``: contact lost: the normal reference moves into the surface (approach.py);
+* ``NO_SURFACE``: the approach travelled ``approach_limit`` without contact: hold, report;
+* ``SAFE``: inputs older than ``state_timeout`` (a frozen wrench counts as old), or the
+  law failed: hold the arm (effort.py ``SafeHold``), theta_hat and h frozen.
+
+Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference
+from the arm's position and velocity (no effort jump); the hand-over from an approach to
+the force loop aligns the force integral so r is continuous. theta_hat and h integrate
+over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
+tick without a new state recomputes the command and integrates nothing, and a late state
+after a gap integrates a bounded step. Times are seconds on the caller's clock.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass
+from enum import Enum
 from typing import Any, Sequence
 
 import numpy as np
 
-from .control_law import ControlError, HybridForceController, in_contact
+from .approach import Approach
+from .contact import ContactDetector, in_contact
+from .control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
+from .effort import EffortLimiter, SafeHold
 from .environment import f_W_from_sensor_wrench
 from .filters import LowPassFilter
-from .params import ControllerParams, build_controller_params
+from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
+                     WrenchSample)
+from .margin import delay_margin
+from .params import ControllerParams, ParameterValidationError, build_params
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel
 
-__all__ = ['ControllerRuntime', 'InputError', 'TickOutput', 'params_for_model']
+__all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
 
-def params_for_model(model: RobotModel, values: dict[str, Any]) -> ControllerParams:
-    """Validate parameter values against the schema and ``model`` (joints default to the
-    model's joints; theta bounds default to the parameter set's)."""
-    ps = model.parameter_set
-    return build_controller_params(
-        {'joints': list(model.joint_names), **values}, p=len(model.theta_nominal),
-        n_joints=model.n, task_axes=model.task_axes, theta_nominal=model.theta_nominal,
-        urdf_effort_limits=model.effort_limits, theta_bounds=(ps.theta_min, ps.theta_max))
+class Mode(str, Enum):
+    """The runtime's state (its value is what /diagnostics shows)."""
 
-
-class InputError(ValueError):
-    """A message the controller cannot use; the text names the problem."""
+    WAITING = 'waiting'
+    RUNNING = 'running'
+    APPROACH = 'approach'
+    NO_SURFACE = 'no_surface'
+    SAFE = 'safe'
 
 
 @dataclass
 class TickOutput:
-    """One tick for the node to publish (3-D vectors in the base frame)."""
+    """One tick for the node to publish (3-D vectors in the base frame; ``tau`` in the
+    order of ``params.runtime.joints``, None while waiting)."""
 
     tau: np.ndarray | None
-    mode: str
+    mode: Mode
     x_W: np.ndarray
     x_d_W: np.ndarray
     f_W: np.ndarray
     f_d_W: np.ndarray
     e_W: np.ndarray
     theta_hat: np.ndarray
-    theta_names: tuple[str, ...]
     in_contact: bool
-    counters: dict[str, int] = field(default_factory=dict)
     status: str = ''
 
 
+@dataclass
+class _Clock:
+    """The run's times, s: ``t0`` the stamp of its first state (the reference's origin),
+    the latest tick, and the stamp of the state the last integration used."""
+
+    t0: float | None = None
+    t_tick: float = -math.inf
+    t_used: float = -math.inf
+
+
+HANDOVER_S = 0.01  # approach -> force loop: the normal r demand decays over this, s
+_COUNTERS = ('ticks', 'joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
+             'safe_mode_entries', 'control_errors', 'saturated_ticks', 'clock_restarts',
+             'approach_entries', 'stale_ticks', 'late_states')
+
+
 class ControllerRuntime:
-    """Latest inputs + control law + safety logic for one arm."""
+    """Latest inputs + control law + modes and safety logic for one arm."""
 
     def __init__(self, model: RobotModel, params: ControllerParams) -> None:
         self.model = model
-        self.ctrl = HybridForceController(model, params)
-        self.counters = {'joint_state_dropped': 0, 'wrench_dropped': 0, 'ticks': 0,
-                         'safe_mode_entries': 0, 'control_errors': 0, 'saturated_ticks': 0,
-                         'clock_restarts': 0}
-        self._q = self._qdot = None
-        self._t_state = self._t_wrench = self._t_wrench_prev = self._t_tick = -np.inf
-        self._F_S = np.zeros(3)  # force of the environment on the tool, sensor frame S
-        self._wrench_frame_id: str | None = None
-        self._new_wrench = False
-        self._t0: float | None = None
-        self.mode = 'waiting'
-        self._filter = LowPassFilter(params.force_filter_hz)
-        self._ref = BlendedReference(_sine(params), params.n, params.ref_blend_time)
+        self.ctrl = HybridForceController(model, params.law)
+        self.counters = dict.fromkeys(_COUNTERS, 0)
+        self.mode, self.status, self.last_fault = Mode.WAITING, 'waiting for inputs', ''
+        self._joints = JointInput(model.joint_names, params.runtime.joints)
+        self._gate = WrenchGate(model.model.existFrame, 0.0, 0.0)
+        self._limiter = EffortLimiter(params.runtime.effort_limits)
+        self._hold, self._contact = SafeHold(model), ContactDetector()
+        self._approach = Approach(0.0, 0.0)
+        self._filter = LowPassFilter(params.runtime.force_filter_hz)
+        self._ref = BlendedReference(_sine(params), params.law.n, params.runtime.ref_blend_time)
+        self._state: JointSample | None = None
+        self._wrench: WrenchSample | None = None
+        self._wrench_prev_t, self._new_wrench = -math.inf, False
+        self._clock = _Clock()
+        self._r_n = 0.0
+        self._handover = (-math.inf, 0.0)  # (stamp, normal r bias) of the last hand-over
         self._install(params)
 
+    # ------------------------------------------------------------------ parameters
     @property
     def params(self) -> ControllerParams:
-        return self.ctrl.params
+        return self._params
 
     @property
     def joint_names(self) -> tuple[str, ...]:
-        return self.params.joints
+        return self._params.runtime.joints
 
     def validate(self, values: dict[str, Any]) -> ControllerParams:
-        """Full set of parameter values -> ControllerParams (ParameterValidationError)."""
-        return params_for_model(self.model, values)
+        """Full set of parameter values -> ControllerParams (ParameterValidationError).
+
+        Beyond the schema, the gains must leave a delay margin (margin.py) of at least
+        ``min_delay_margin`` at the arm's latest pose (unchecked before the first state)."""
+        params = build_params(self.model, values)
+        need = params.runtime.min_delay_margin
+        margin = self.delay_margin(params)
+        if need > 0.0 and margin < need:
+            raise ParameterValidationError(
+                f'the gains leave a delay margin of {margin * 1e3:.2f} ms at this pose, less '
+                f'than min_delay_margin = {need * 1e3:.2f} ms (lower k_d, k_a or lambda1, or '
+                'min_delay_margin)')
+        return params
+
+    def delay_margin(self, params: ControllerParams | None = None) -> float:
+        """Loop delay the gains tolerate at the latest pose, s (margin.py; inf before the
+        first joint state or at a singular pose)."""
+        params = params or self._params
+        if self._state is None:
+            return math.inf
+        try:
+            return delay_margin(self.model, params.law, self._state.q,
+                                params.runtime.force_filter_hz)
+        except (np.linalg.LinAlgError, ValueError):
+            return math.inf
 
     def set_params(self, params: ControllerParams) -> None:
         """Install a validated set atomically; it takes effect on the next tick.
 
         A new filter cut-off keeps the filtered force; a new reference (``ref_*``, ``n``,
-        ``ref_blend_time``) releases a held point and blends from the current reference.
+        ``ref_blend_time``) releases a held point and blends from the current reference;
+        a stopped approach (``NO_SURFACE``) starts again from where the tool is.
         """
-        old = self.params
-        if params.force_filter_hz != old.force_filter_hz:
+        old, new = self._params.runtime, params.runtime
+        if new.force_filter_hz != old.force_filter_hz:
             value, ready = self._filter.value.copy(), self._filter.ready
-            self._filter = LowPassFilter(params.force_filter_hz)
+            self._filter = LowPassFilter(new.force_filter_hz)
             if ready:
                 self._filter.update(value, 0.0)
-        changed = any(not np.array_equal(getattr(params, k), getattr(old, k)) for k in
-                      ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time', 'n'))
+        changed = any(not np.array_equal(getattr(new, k), getattr(old, k)) for k in
+                      ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time'))
+        changed = changed or not np.array_equal(params.law.n, self._params.law.n)
         self._install(params)
         if changed:
-            self._ref.switch(self._tau(), sine=_sine(params), release=True, n_W=params.n,
-                             t_blend=params.ref_blend_time)
+            self._ref.switch(self.run_time, sine=_sine(params), release=True,
+                             n_W=params.law.n, t_blend=new.ref_blend_time)
+        if self.mode == Mode.NO_SURFACE:
+            self._enter_approach()
 
     def _install(self, params: ControllerParams) -> None:
-        unknown = [j for j in params.joints if j not in self.model.joint_names]
-        if unknown:
-            raise InputError(f'joints not in the robot model: {unknown}')
-        self._cmd_order = [self.model.joint_names.index(j) for j in params.joints]
-        self.ctrl.set_params(params)
-        self._period = 1.0 / params.rate_hz
-        self._f_d_W = params.f_d * params.n
-
-    def _tau(self) -> float:
-        """Run time of the latest joint state (the reference's time)."""
-        return 0.0 if self._t0 is None else self._t_state - self._t0
+        rt = params.runtime
+        self._params = params
+        self.ctrl.set_gains(params.law)
+        self._joints = JointInput(self.model.joint_names, rt.joints)
+        self._cmd_order = [self.model.joint_names.index(j) for j in rt.joints]
+        self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
+        self._gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
+        self._approach.configure(rt.approach_speed, rt.approach_limit)
+        self._period = 1.0 / rt.rate_hz
+        self.f_d_W = params.law.f_d * params.law.n
 
     # ------------------------------------------------------------------ inputs
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
                        qdot: Sequence[float] | None, t: float) -> None:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
+        t_last = -math.inf if self._state is None else self._state.t
         try:
-            if t < self._t_state:
-                raise InputError(f'joint state stamp {t:.6f} is older than the last one '
-                                 f'{self._t_state:.6f}')
-            self._q, self._qdot = self._map_joints(names, q, qdot)
-        except InputError:
-            self.counters['joint_state_dropped'] += 1
-            raise
-        self._t_state = t
-
-    def _map_joints(self, names, q, qdot) -> tuple[np.ndarray, np.ndarray]:
-        if len(q) != len(names) or (qdot is not None and len(qdot) not in (0, len(names))):
-            raise InputError('joint state: names, positions and velocities differ in length')
-        pos = {n: i for i, n in enumerate(names)}
-        missing = [j for j in self.params.joints if j not in pos]
-        if missing:
-            raise InputError(f'joint state lacks controlled joint(s) {missing}')
-        if qdot is None or not len(qdot):
-            raise InputError('joint state has no velocities')
-        idx = [pos[j] for j in self.model.joint_names]
-        q_arr, v_arr = np.asarray(q, dtype=float)[idx], np.asarray(qdot, dtype=float)[idx]
-        if not (np.all(np.isfinite(q_arr)) and np.all(np.isfinite(v_arr))):
-            raise InputError('joint state holds NaN/Inf')
-        return q_arr, v_arr
+            self._state = self._joints.sample(names, q, qdot, t, t_last)
+        except InputError as exc:
+            self._fault('joint_state_dropped', exc)
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
-        F_S = np.asarray(force, dtype=float)
-        problem = None
-        if F_S.shape != (3,) or not np.all(np.isfinite(F_S)):
-            problem = f'wrench holds NaN/Inf or is not 3-D: {F_S.tolist()}'
-        elif not self.model.model.existFrame(frame_id or ' '):
-            problem = f"wrench frame '{frame_id}' is not a frame of the robot model"
-        elif t < self._t_wrench:
-            problem = f'wrench stamp {t:.6f} is older than the last one {self._t_wrench:.6f}'
-        if problem:
-            self.counters['wrench_dropped'] += 1
-            raise InputError(problem)
-        self._t_wrench_prev, self._t_wrench = self._t_wrench, t
-        self._F_S, self._wrench_frame_id, self._new_wrench = F_S, frame_id, True
+        try:
+            sample = self._gate.check(frame_id, force, t)
+        except ImplausibleWrench as exc:
+            self._fault('wrench_implausible', exc)
+        except InputError as exc:
+            self._fault('wrench_dropped', exc)
+        self._wrench_prev_t = -math.inf if self._wrench is None else self._wrench.t
+        self._wrench, self._new_wrench = sample, True
+
+    def _fault(self, counter: str, exc: InputError) -> None:
+        self.counters[counter] += 1
+        self.last_fault = str(exc)
+        raise exc
 
     def on_reference(self, x_d_W: Sequence[float]) -> None:
         """Hold a user reference point (base frame) instead of the sine, blended in.
@@ -180,99 +214,209 @@ class ControllerRuntime:
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
-        self._ref.switch(self._tau(), x_hold_W=x)
+        self._ref.switch(self.run_time, x_hold_W=x)
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def run_time(self) -> float:
+        """Time since the run started, at the latest joint state (the reference's time)."""
+        c = self._clock
+        return 0.0 if c.t0 is None or self._state is None else self._state.t - c.t0
+
+    @property
+    def state_stamp(self) -> float:
+        """Stamp of the latest joint state, s (-inf before the first)."""
+        return -math.inf if self._state is None else self._state.t
+
+    @property
+    def theta_hat(self) -> np.ndarray:
+        return self.ctrl.theta_hat
+
+    @property
+    def in_contact(self) -> bool:
+        """The contact state (hysteresis on the filtered normal force)."""
+        return self._contact.active
+
+    def desired_position(self, t: float) -> np.ndarray:
+        """The reference position at time ``t`` on the caller's clock (base frame)."""
+        t0 = self._clock.t0
+        return self._ref(0.0 if t0 is None else t - t0).x_d_W
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
         """Compute the command for time ``t`` from the latest inputs."""
         self.counters['ticks'] += 1
-        period = self._period
-        if t < self._t_tick - period:  # the clock jumped back (e.g. a restarted /clock)
+        c = self._clock
+        if t < c.t_tick - self._period:  # the clock jumped back (e.g. a restarted /clock)
             self.restart_clock()
-        dt = min(max(t - self._t_tick, 0.1 * period), 10.0 * period)
-        self._t_tick = max(self._t_tick, t)
-        if self._q is None or self._wrench_frame_id is None:
-            return self._output(None, 'waiting', None, 'waiting for joint states and wrench')
-        f_W = self._filtered_force(dt)
-        if t - min(self._t_state, self._t_wrench) > self.params.state_timeout:
-            return self._safe(f_W, 'inputs older than state_timeout: safe mode', t)
-        if self.mode != 'running':
-            self._start()
-        ref = self._ref(self._tau())
+        c.t_tick = max(c.t_tick, t)
+        if self._state is None or self._wrench is None:
+            return self._output(None, Mode.WAITING, 'waiting for joint states and wrench')
+        f_W = self._filtered_force()
+        stale = self._stale(t)
+        if stale:
+            return self._safe(f_W, stale, t)
+        dt_state, dt_int = self._state_step()
+        f_n = float(self._params.law.n @ f_W)
+        touching = self._contact.update(f_n, self._params.law.f_d, self._state.t)
+        if self.mode in (Mode.WAITING, Mode.SAFE):
+            self._start(touching)
+        else:
+            self._switch(touching, f_W)
+        approach = self._approach_ref(dt_state)
+        ref = self._ref(self.run_time)
         try:
-            out = self.ctrl.step(self._q, self._qdot, f_W, ref, dt)
+            out = self.ctrl.step(self._state.q, self._state.qdot, f_W, ref, dt_int,
+                                 in_contact=in_contact(f_n, self._params.law.f_d),
+                                 approach=approach, r_bias=self._handover_bias())
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
-        self.mode = 'running'
-        self.counters['saturated_ticks'] += int(out.saturated)
-        return self._output(out.tau, 'running', f_W, 'running', self.ctrl.last_kin.p_W,
-                            ref.x_d_W, out.e)
+        self._r_n = out.r_n
+        tau, saturated = self._limiter(out.tau)
+        self.counters['saturated_ticks'] += saturated
+        return self._running_output(tau, out, ref.x_d_W, f_W)
+
+    def _stale(self, t: float) -> str:
+        """Why the inputs are too old to act on ('' when they are fresh)."""
+        timeout = self._params.runtime.state_timeout
+        if t - self._state.t > timeout:
+            return 'joint states older than state_timeout: safe mode'
+        t_value = self._wrench.t
+        if self._params.runtime.reject_frozen_wrench and self._gate.frozen_since is not None:
+            t_value = self._gate.frozen_since
+        if t - t_value > timeout:
+            return ('wrench frozen (identical readings) or implausible for longer than '
+                    'state_timeout: safe mode' if t - self._wrench.t <= timeout else
+                    'wrench older than state_timeout: safe mode')
+        return ''
+
+    def _state_step(self) -> tuple[float, float]:
+        """Time since the state the last integration used (0 if none is new), and the part
+        of it theta_hat and h integrate (at most ``max_integration_dt``)."""
+        c, t = self._clock, self._state.t
+        if t <= c.t_used:
+            self.counters['stale_ticks'] += 1
+            return 0.0, 0.0
+        dt = self._period if c.t_used == -math.inf else t - c.t_used
+        c.t_used = t
+        limit = self._params.runtime.max_integration_dt
+        if dt > limit:
+            self.counters['late_states'] += 1
+        return dt, min(dt, limit)
+
+    def _start(self, touching: bool) -> None:
+        """(Re)start: the reference blends from the arm's position and velocity."""
+        c = self._clock
+        c.t0 = self._state.t if c.t0 is None else c.t0
+        kin = self.model.kinematics(self._state.q, self._state.qdot)
+        pdot_W = np.zeros(3)
+        pdot_W[self.model.task_index] = kin.xdot
+        self._ref.start_from(self.run_time, kin.p_W, pdot_W)
+        self._r_n = float(self._params.law.n @ pdot_W)
+        self.mode = Mode.RUNNING
+        if not touching and self._approach.speed > 0.0:
+            self._enter_approach()
+
+    def _switch(self, touching: bool, f_W: np.ndarray) -> None:
+        """Contact lost: approach; contact found: the force loop, r continuous."""
+        if self.mode == Mode.RUNNING and not touching and self._approach.speed > 0.0:
+            self._enter_approach()
+        elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
+            f_n = float(self._params.law.n @ f_W)
+            self._handover = (self._state.t, self._r_n - self.ctrl.force_loop_r_n(f_n))
+            self.mode = Mode.RUNNING
+
+    def _handover_bias(self) -> tuple[float, float]:
+        """Bumpless hand-over from an approach: the normal r the approach demanded decays
+        linearly into the force loop's over HANDOVER_S (no integral wind-up)."""
+        t_c, bias = self._handover
+        frac = 1.0 - (self._state.t - t_c) / HANDOVER_S
+        if self.mode != Mode.RUNNING or bias == 0.0 or frac <= 0.0:
+            return 0.0, 0.0
+        return bias * frac, -bias / HANDOVER_S
+
+    def _enter_approach(self) -> None:
+        kin = self.model.kinematics(self._state.q, self._state.qdot)
+        x_n = float(self._params.law.n[self.model.task_index] @ kin.x)
+        self._approach.start(x_n, self._r_n)
+        self.counters['approach_entries'] += 1
+        self.mode = Mode.APPROACH
+
+    def _approach_ref(self, dt: float) -> ApproachRef | None:
+        if self.mode not in (Mode.APPROACH, Mode.NO_SURFACE):
+            return None
+        kin = self.model.kinematics(self._state.q, self._state.qdot)
+        ref = self._approach.step(dt, float(self._params.law.n[self.model.task_index] @ kin.x))
+        if self._approach.exhausted:
+            self.mode = Mode.NO_SURFACE
+        return ref
 
     def restart_clock(self) -> None:
-        """Forget the input stamps after a backward time jump and start as after power-up
+        """Forget the inputs after a backward time jump and start as after power-up
         (keeping theta_hat; the force integral and the rate limiter restart)."""
         self.counters['clock_restarts'] += 1
-        self._q = self._qdot = self._wrench_frame_id = None
-        self._t_state = self._t_wrench = self._t_wrench_prev = self._t_tick = -np.inf
-        self._t0 = None
-        self.mode = 'waiting'
+        self._state = self._wrench = None
+        self._gate.reset()
+        self._clock = _Clock()
+        self.mode = Mode.WAITING
         self._filter.reset()
+        self._contact.reset()
+        self._limiter.reset()
         self.ctrl.reset(self.ctrl.theta_hat)
 
-    def _filtered_force(self, dt: float) -> np.ndarray:
+    def restart(self) -> None:
+        """Start again from the arm's state on the next tick (after a deactivation):
+        the reference re-blends, the force integral and the rate limiter restart."""
+        self.mode = Mode.WAITING
+        self._limiter.reset()
+        self.ctrl.h = 0.0
+
+    def _filtered_force(self) -> np.ndarray:
         """f_W: the newest wrench in the base frame, low-pass filtered over wrench stamps."""
         if self._new_wrench:
-            frame = self._wrench_frame_id
-            R = None if frame == self.model.base_link else self.model.frame_rotation(self._q,
-                                                                                   frame)
-            f_W = -self._F_S if R is None else f_W_from_sensor_wrench(R, self._F_S)
-            gap = self._t_wrench - self._t_wrench_prev
-            self._filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else dt)
+            w = self._wrench
+            R = (None if w.frame_id == self.model.base_link
+                 else self.model.frame_rotation(self._state.q, w.frame_id))
+            f_W = -w.F_S if R is None else f_W_from_sensor_wrench(R, w.F_S)
+            gap = w.t - self._wrench_prev_t
+            self._filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else self._period)
             self._new_wrench = False
         return self._filter.value
 
-    def _start(self) -> None:
-        """(Re)start tracking: the reference blends from the arm's position and velocity."""
-        self._t0 = self._t_state if self._t0 is None else self._t0
-        kin = self.model.kinematics(self._q, self._qdot)
-        pdot_W = np.zeros(3)
-        pdot_W[self.model.task_index] = kin.xdot
-        self._ref.start_from(self._tau(), kin.p_W, pdot_W)
-
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
-        """Hold: gravity compensation plus the last contact force, damping only with a
-        fresh velocity; adaptation and force loop frozen; effort and rate limits apply."""
-        if self.mode != 'safe':  # the force at entry is held: adding the live force would
-            self.counters['safe_mode_entries'] += 1  # cancel the surface's reaction (with
-            self._f_hold = f_W[self.model.task_index].copy()  # stale q: positive feedback)
-        self.mode = 'safe'
-        kin = self.model.kinematics(self._q, self._qdot)
-        z = np.zeros(self.model.n)
-        Y_g, tau_0 = self.model.regressor_affine(self._q, z, z, z)
-        g_hat = Y_g @ self.ctrl.theta_hat + (0.0 if tau_0 is None else tau_0)
-        tau = g_hat + kin.J_ee.T @ self._f_hold
-        if t - self._t_state <= self.params.state_timeout:  # the velocity is fresh: damp it
-            tau -= self.params.k_d * (kin.J_ee.T @ kin.xdot)
-            if self.model.redundant:
-                tau -= self.params.k_null * self._qdot
-        if not np.all(np.isfinite(tau)):
-            tau = np.zeros(self.model.n)
-        return self._output(self.ctrl.limit(tau), 'safe', f_W, status, kin.p_W.copy())
+        """Hold (effort.SafeHold); the velocity is damped only while it is fresh."""
+        if self.mode != Mode.SAFE:
+            self.counters['safe_mode_entries'] += 1
+            self._hold.latch(f_W)
+        self.mode = Mode.SAFE
+        law, s = self._params.law, self._state
+        fresh = t - s.t <= self._params.runtime.state_timeout
+        tau, p_W = self._hold.effort(s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.k_null, fresh)
+        tau, _ = self._limiter(tau)
+        return self._output(tau, Mode.SAFE, status, f_W, p_W)
 
-    def _output(self, tau, mode: str, f_W, status: str, x_W=None, x_d_W=None,
-                e=None) -> TickOutput:
-        p = self.params
+    def _running_output(self, tau: np.ndarray, out: ControlOutput, x_d_W: np.ndarray,
+                        f_W: np.ndarray) -> TickOutput:
+        status = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface',
+                  Mode.NO_SURFACE: f'surface not found within approach_limit = '
+                  f'{self._params.runtime.approach_limit:g} m: holding'}[self.mode]
+        return self._output(tau, self.mode, status, f_W, out.kin.p_W, x_d_W, out.e)
+
+    def _output(self, tau: np.ndarray | None, mode: Mode, status: str,
+                f_W: np.ndarray | None = None, x_W: np.ndarray | None = None,
+                x_d_W: np.ndarray | None = None, e: np.ndarray | None = None) -> TickOutput:
+        self.mode, self.status = mode, status
         x_W = np.zeros(3) if x_W is None else x_W
         f = np.zeros(3) if f_W is None else f_W.copy()
         e_W = np.zeros(3)
         if e is not None:
             e_W[self.model.task_index] = e
         tau = None if tau is None else tau[self._cmd_order]
-        return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self._f_d_W,
-                          e_W, self.ctrl.theta_hat.copy(), self.model.theta_names,
-                          in_contact(float(p.n @ f), p.f_d), dict(self.counters), status)
+        return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
+                          e_W, self.ctrl.theta_hat.copy(), self._contact.active, status)
 
 
 def _sine(params: ControllerParams) -> SineReference:
-    return SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)
+    rt = params.runtime
+    return SineReference(rt.ref_center, rt.ref_amplitude, rt.ref_omega)

@@ -11,6 +11,7 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
+from .contact import in_contact
 from .environment import ElasticSurface
 from .robot_model import RobotModel
 
@@ -27,7 +28,8 @@ class Measurement(NamedTuple):
     """What the arm's sensors report after a step.
 
     ``f_W`` is the force the tool exerts on the surface in the base frame as the wrist
-    sensor measures it (with noise when configured); ``f_true_W`` is the noise-free value.
+    sensor measures it (with noise when configured); ``f_true_W`` is the noise-free value;
+    ``in_contact`` is the one contact predicate (contact.py) on the true force.
     """
 
     t: float
@@ -75,9 +77,9 @@ class ArmSimulator:
         all in ``base_link`` (the frame of ``_W`` quantities)."""
         m, d, fid = self._pin_model, self._pin_data, self.model.frame_id
         J = pin.computeFrameJacobian(m, d, q, fid, _LWA)[:3]
-        T_W_ee = pin.updateFramePlacement(m, d, fid)
+        T_root_ee = pin.updateFramePlacement(m, d, fid)
         # everything in base_link, the frame of the surface and of the controller
-        pose = self.model.base_from_root(T_W_ee.translation, T_W_ee.rotation, J)
+        pose = self.model.base_from_root(T_root_ee.translation, T_root_ee.rotation, J)
         surface = self.surface
         depth = -1.0 if surface is None else float(surface.n_W @ (pose[0] - surface.x0_W))
         if depth <= 0.0:  # eqs. (12)-(13): the surface pushes but never pulls
@@ -110,11 +112,17 @@ class ArmSimulator:
         self.t += dt
         return self.measure()
 
+    def hold(self, dt: float) -> Measurement:
+        """Advance ``dt`` seconds with the arm held still by its brakes (before a command)."""
+        self.qdot = np.zeros(self.model.n)
+        self.t += dt
+        return self.measure()
+
     def measure(self) -> Measurement:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""
         f_true, self._tau_c, (p_W, R_W_ee, _) = self._contact(self.q)
         f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
         # q, qdot and tau are rebound (never mutated) by step(), so no copies are needed
+        f_n = float(np.linalg.norm(f_true))  # the surface pushes along its normal only
         return Measurement(self.t, self.q, self.qdot, self.tau, p_W, R_W_ee,
-                           f_meas, f_true,
-                           bool(f_true.any()))
+                           f_meas, f_true, in_contact(f_n))

@@ -21,12 +21,13 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 
-from .diagnostics import controller_status
+from .diagnostics import INPUT_FAULTS, controller_status
 from ..core.loop_stats import LoopStats
 from ..core.params import CONTROLLER_SCHEMA, MODEL_SCHEMA
 from ..core.robot_model import RobotModel
 from .parameters import ParameterBinder, declare_schema, run_node
-from ..core.runtime import ControllerRuntime, InputError, TickOutput, params_for_model
+from ..core.params import build_params
+from ..core.runtime import ControllerRuntime, InputError, Mode, TickOutput
 
 __all__ = ['ControllerNode', 'main']
 
@@ -45,12 +46,13 @@ class ControllerNode(Node):
         values = declare_schema(self, CONTROLLER_SCHEMA, unit=('n',))
         model_values = declare_schema(self, MODEL_SCHEMA)
         self.model = RobotModel.from_parameters(model_values, values['joints'])
-        self.runtime = ControllerRuntime(self.model, params_for_model(self.model, values))
+        self.runtime = ControllerRuntime(self.model, build_params(self.model, values))
         self.binder = ParameterBinder(self, CONTROLLER_SCHEMA, self.runtime.validate,
                                       self.runtime.set_params, unit=('n',))
         self.errors: Counter[str] = Counter()
         self.base_frame = self.model.base_link
-        self._mode = ''
+        self._mode: Mode | None = None
+        self._faults = 0
         qos = QoSProfile(depth=10)
         self.create_subscription(JointState, '/joint_states',
                                  self._guarded('joint_states', self._on_joint_state), qos)
@@ -71,7 +73,7 @@ class ControllerNode(Node):
             label=','.join(self.model.theta_names), size=p, stride=p)])
         self.loop_stats = LoopStats()
         self._last: TickOutput | None = None
-        self.timer = self.create_timer(1.0 / self.runtime.params.rate_hz,
+        self.timer = self.create_timer(1.0 / self.runtime.params.runtime.rate_hz,
                                        self._guarded('tick', self._on_timer))
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics))
 
@@ -116,16 +118,18 @@ class ControllerNode(Node):
                 publisher.publish(msg)
         if out.mode != self._mode:  # one call site per severity: rclpy refuses to mix them
             self._mode = out.mode
-            if out.mode == 'safe':
-                self.get_logger().error(f'mode safe: {out.status}')
+            if out.mode in (Mode.SAFE, Mode.NO_SURFACE):
+                self.get_logger().error(f'mode {out.mode.value}: {out.status}')
             else:
-                self.get_logger().info(f'mode {out.mode}: {out.status}')
+                self.get_logger().info(f'mode {out.mode.value}: {out.status}')
         self.loop_stats.record(t_start, time.perf_counter())
 
     def _on_diagnostics(self) -> None:
+        faults = sum(self.runtime.counters[k] for k in INPUT_FAULTS)
+        new_faults, self._faults = faults - self._faults, faults
         self.pub_diag.publish(controller_status(self.get_clock().now().to_msg(), self.get_name(),
-                                                self._last, self.loop_stats.summary(),
-                                                self.errors))
+                                                self.runtime, new_faults,
+                                                self.loop_stats.summary(), self.errors))
 
     def _messages(self, out: TickOutput, stamp) -> list[tuple[Any, Any]]:
         header = Header(stamp=stamp, frame_id=self.base_frame)

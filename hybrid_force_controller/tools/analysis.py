@@ -17,7 +17,8 @@ __all__ = ['AnalysisError', 'METRIC_KEYS', 'RunLog', 'align', 'compute_metrics',
            'contact_lost_time', 'normal_force_error', 'surface_axis', 'tangential_error']
 
 METRIC_KEYS = ('rms_position_error_m', 'max_position_error_m', 'rms_force_error_n',
-               'max_force_error_n', 'contact_lost_s', 'theta_hat_final', 'wall_time_s',
+               'max_force_error_n', 'contact_lost_s', 'contact_lost_window_s',
+               'theta_hat_final', 'wall_time_s',
                'sim_time_s')
 
 _UNIT_TOL = 1e-6
@@ -203,8 +204,8 @@ def normal_force_error(log: RunLog) -> np.ndarray:
     return (f_W - log.f_d_W) @ log.n_W
 
 
-def contact_lost_time(log: RunLog) -> float:
-    """Total time out of contact after the first contact sample.
+def contact_lost_time(log: RunLog, t_start: float = -math.inf) -> float:
+    """Total time out of contact after the first contact sample (and after ``t_start``).
 
     Sample ``i`` lasts ``t[i+1] - t[i]`` (zero-order hold); the last sample lasts zero.
     A run that never touches the surface counts its whole duration as lost.
@@ -217,8 +218,8 @@ def contact_lost_time(log: RunLog) -> float:
     durations = np.diff(log.t, append=log.t[-1])
     touched = np.flatnonzero(log.in_contact)
     if touched.size == 0:
-        return float(log.t[-1] - log.t[0])
-    after = np.arange(log.t.size) >= touched[0]
+        return float(log.t[-1] - max(log.t[0], min(t_start, log.t[-1])))
+    after = (np.arange(log.t.size) >= touched[0]) & (log.t >= t_start)
     return float(np.sum(durations[after & ~log.in_contact]))
 
 
@@ -249,7 +250,9 @@ def compute_metrics(log: RunLog, t_start: float = 5.0,
     -------
     dict
         Keys :data:`METRIC_KEYS`: RMS/max tangential position error [m], RMS/max absolute
-        normal force error [N], ``contact_lost_s`` over the whole run, final ``theta_hat``
+        normal force error [N], ``contact_lost_s`` over the whole run and
+        ``contact_lost_window_s`` over ``t >= t_start`` (after the first contact), final
+        ``theta_hat``
         as a list, ``wall_time_s`` and ``sim_time_s = t[-1] - t[0]``.
 
     Raises
@@ -273,6 +276,7 @@ def compute_metrics(log: RunLog, t_start: float = 5.0,
         'rms_force_error_n': float(np.sqrt(np.mean(e_force ** 2))),
         'max_force_error_n': float(np.max(np.abs(e_force))),
         'contact_lost_s': contact_lost_time(log),
+        'contact_lost_window_s': contact_lost_time(log, t_start),
         'theta_hat_final': [float(v) for v in log.theta_hat[-1]],
         'wall_time_s': float(wall_time_s),
         'sim_time_s': float(log.t[-1] - log.t[0]),

@@ -21,6 +21,7 @@ from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from ..core.contact import CONTACT_FORCE_MIN_N, in_contact
 from .analysis import AnalysisError, RunLog, align
 
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
@@ -286,7 +287,8 @@ def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
     return f_d_W[k] / norms[k]
 
 
-def load_run(bag_path: str | Path, contact_threshold_n: float = 0.05) -> RunLog:
+def load_run(bag_path: str | Path,
+             contact_threshold_n: float = CONTACT_FORCE_MIN_N) -> RunLog:
     """Load a controller recording as a :class:`RunLog` on the stamps of ``TOPIC_X``.
 
     Parameters
@@ -294,8 +296,9 @@ def load_run(bag_path: str | Path, contact_threshold_n: float = 0.05) -> RunLog:
     bag_path : str or pathlib.Path
         rosbag2 directory (MCAP or sqlite3), or a single ``.mcap``/``.db3`` file.
     contact_threshold_n : float
-        ``in_contact = n^T f > contact_threshold_n``, with ``f`` the true contact force
-        (``/sim/contact_wrench``) when recorded, else the measured one.
+        Contact is the core predicate (``core.contact.in_contact``) on ``n^T f`` with this
+        minimum force, ``f`` the true contact force (``/sim/contact_wrench``) when
+        recorded, else the measured one; the offline ``paper`` run uses the same test.
 
     Returns
     -------
@@ -325,6 +328,8 @@ def load_run(bag_path: str | Path, contact_threshold_n: float = 0.05) -> RunLog:
         return RunLog(t=(stamps - stamps[0]) * 1e-9, x_W=np.asarray(x.values, dtype=float),
                       x_d_W=_on_x_time(series[TOPIC_X_DESIRED], x), f_W=f_W, f_d_W=f_d_W,
                       n_W=n_W, theta_hat=theta_hat, theta_names=names,
-                      in_contact=f_contact_n > contact_threshold_n, f_true_W=f_true_W)
+                      in_contact=np.array([in_contact(f, minimum=contact_threshold_n)
+                                           for f in f_contact_n], dtype=bool),
+                      f_true_W=f_true_W)
     except AnalysisError as exc:
         raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

@@ -1,0 +1,226 @@
+"""The one loop engine: :class:`~.runtime.ControllerRuntime` against a plant, offline.
+
+Every offline run (``paper``, ``bench``, the closed-loop tests) goes through
+:func:`run_loop`, so they all exercise the node's own logic (inputs, filter, reference,
+modes, safe hold). The engine replays what happens between two processes over DDS with a
+:class:`~.timing.TimingModel`: the plant steps at ``period`` on its own clock and publishes
+its state (joint state and wrench, one stamp); each message reaches the controller after a
+latency; the controller ticks on a timer (or on each new state) and its effort reaches the
+plant after a latency; either process can stall (a scheduler hiccup, SIGSTOP), during
+which it neither publishes nor reads, while the plant's physics goes on with the command
+it holds. Times are integer nanoseconds inside, so equal times compare exactly;
+``TimingModel.lockstep(d)`` reproduces the old "d periods of delay" model. Pure numpy.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from .environment import sensor_wrench_from_f_W
+from .runtime import ControllerRuntime
+from .timing import Schedule, TimingModel
+
+__all__ = ['Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop']
+
+
+class Plant(Protocol):
+    """What the engine needs of a plant (``simulator.ArmSimulator`` is one)."""
+
+    t: float
+
+    def step(self, tau: np.ndarray, dt: float) -> Any: ...
+
+    def measure(self) -> Any: ...
+
+    def hold(self, dt: float) -> Any: ...
+
+
+@dataclass(frozen=True)
+class Event:
+    """``action(runtime, plant)`` at plant time ``t`` (a parameter set, a surface move...)."""
+
+    t: float
+    action: Callable[[ControllerRuntime, Any], None]
+
+
+@dataclass
+class LoopLog:
+    """Per plant step: time, state, forces (3-D, base frame), reference, effort, theta_hat."""
+
+    t: np.ndarray
+    x_W: np.ndarray
+    x_d_W: np.ndarray
+    f_W: np.ndarray
+    f_true_W: np.ndarray
+    f_d_W: np.ndarray
+    theta_hat: np.ndarray
+    tau: np.ndarray
+    mode: list[str]
+    commands: int
+    ticks: int
+    delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    tick_ns: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass
+class _Channel:
+    """Messages in flight: (arrival ns, payload), delivered in order (DDS reliable)."""
+
+    queue: list = field(default_factory=list)
+    last_arrival: int = -1
+
+    def send(self, arrival: int, payload: Any) -> None:
+        arrival = max(arrival, self.last_arrival)
+        self.last_arrival = arrival
+        self.queue.append((arrival, payload))
+
+    def newest(self, now: int) -> Any:
+        """The newest payload arrived by ``now`` (older ones are dropped: KEEP_LAST 1)."""
+        got = None
+        while self.queue and self.queue[0][0] <= now:
+            got = self.queue.pop(0)[1]
+        return got
+
+
+class LoopEngine:
+    """Runtime, plant and timing over one horizon; :meth:`step` advances one plant period.
+
+    ``wrench_frame`` is the frame the sensor reports in (default the end effector, like a
+    wrist sensor). ``input_hook(t, (q, qdot, F_S))`` may return a corrupted tuple, or None
+    to drop the message (fault injection). ``clock_ns`` (e.g. ``time.perf_counter_ns``,
+    injected by a benchmark) times every ``runtime.tick`` into ``LoopLog.tick_ns``.
+    """
+
+    def __init__(self, runtime: ControllerRuntime, plant: Plant, horizon: float,
+                 timing: TimingModel = TimingModel(), events: Sequence[Event] = (),
+                 wrench_frame: str | None = None,
+                 input_hook: Callable[[float, Any], Any] | None = None,
+                 clock_ns: Callable[[], int] | None = None) -> None:
+        self.runtime, self.plant = runtime, plant
+        self.schedule = Schedule(timing, horizon)
+        self.steps = int(round(horizon * 1e9 / self.schedule.period_ns))
+        self.frame = wrench_frame or runtime.model.end_effector_link
+        self.names = list(runtime.model.joint_names)
+        self.input_hook, self.clock_ns = input_hook, clock_ns
+        self.log = _Recorder(self.steps, len(runtime.ctrl.theta_hat))
+        self._to_ctrl, self._to_plant = _Channel(), _Channel()
+        self._events = sorted(events, key=lambda e: e.t)
+        self.tau_plant: np.ndarray | None = None  # the command the plant holds
+        self.meas = plant.measure()
+        self.k = 0
+        self.outputs: list = []  # the runtime's outputs of the last step
+        self._delays: list[float] = []
+
+    @property
+    def t(self) -> float:
+        """Plant time of the next step, s."""
+        return self.k * self.schedule.period_ns * 1e-9
+
+    def step(self) -> Any:
+        """One plant period: publish, controller ticks, plant update. Returns the
+        measurement the plant published at the start of it."""
+        sched, P, k = self.schedule, self.schedule.period_ns, self.k
+        t_k = k * P
+        while self._events and self._events[0].t * 1e9 <= t_k:
+            self._events.pop(0).action(self.runtime, self.plant)
+        meas = self.meas
+        if not sched.plant_stalled(t_k):
+            self._to_ctrl.send(sched.state_arrival(t_k), (t_k, meas))
+        self.outputs = [self._tick(t) for t in sched.ticks_until(t_k, self._to_ctrl)]
+        if not sched.plant_stalled(t_k):
+            cmd = self._to_plant.newest(t_k)
+            self.tau_plant = self.tau_plant if cmd is None else cmd
+        if k < self.steps:
+            self.log.record(k, t_k * 1e-9, meas, self.runtime, self.tau_plant)
+        dt = P * 1e-9
+        self.meas = (self.plant.hold(dt) if self.tau_plant is None
+                     else self.plant.step(self.tau_plant, dt))
+        self.k += 1
+        return meas
+
+    def _tick(self, t_tick: int) -> Any:
+        got = self._to_ctrl.newest(t_tick)
+        if got is not None:
+            _deliver(self.runtime, self.names, self.frame, got, self.input_hook)
+        clock = self.clock_ns
+        t_wall = clock() if clock is not None else 0
+        out = self.runtime.tick(t_tick * 1e-9)
+        if clock is not None:
+            self.log.tick_ns.append(clock() - t_wall)
+        self.log.note_tick(out)
+        if out.tau is not None:
+            self._to_plant.send(self.schedule.command_arrival(t_tick), out.tau)
+            self._delays.append((t_tick - _ns(self.runtime.state_stamp)) * 1e-9)
+        return out
+
+    def run(self) -> LoopLog:
+        """Step to the end of the horizon and return the log."""
+        while self.k < self.steps:
+            self.step()
+        return self.log.result(self._delays)
+
+
+def run_loop(runtime: ControllerRuntime, plant: Plant, duration: float,
+             timing: TimingModel = TimingModel(), events: Sequence[Event] = (),
+             **kwargs: Any) -> LoopLog:
+    """Run ``duration`` seconds of plant time and return the log (see :class:`LoopEngine`)."""
+    return LoopEngine(runtime, plant, duration, timing, events, **kwargs).run()
+
+
+def _ns(t: float) -> int:
+    return int(round(t * 1e9)) if math.isfinite(t) else 0
+
+
+def _deliver(runtime: ControllerRuntime, names: list[str], frame: str, got: tuple,
+             hook: Callable | None) -> None:
+    """The joint state and wrench of one plant stamp, as the node would pass them."""
+    t_ns, meas = got
+    t = t_ns * 1e-9
+    msg = (meas.q, meas.qdot, sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W))
+    if hook is not None:
+        msg = hook(t, msg)
+        if msg is None:
+            return
+    q, qdot, F_S = msg
+    for call in (lambda: runtime.on_joint_state(names, q, qdot, t),
+                 lambda: runtime.on_wrench(frame, F_S, t)):
+        try:
+            call()
+        except ValueError:
+            pass  # dropped and counted by the runtime, as the node's guard does
+
+
+class _Recorder:
+    """Preallocated arrays of one run."""
+
+    def __init__(self, steps: int, p: int) -> None:
+        self.t = np.zeros(steps)
+        self.x, self.x_d, self.f, self.f_true, self.f_d = (np.zeros((steps, 3)) for _ in range(5))
+        self.theta = np.zeros((steps, p))
+        self.tau: list[np.ndarray] = []
+        self.mode: list[str] = []
+        self.commands = self.ticks = 0
+        self.tick_ns: list[int] = []
+        self._out = None
+
+    def note_tick(self, out) -> None:
+        self.ticks += 1
+        self.commands += out.tau is not None
+        self._out = out
+
+    def record(self, k: int, t: float, meas, runtime: ControllerRuntime, tau) -> None:
+        out = self._out
+        self.t[k], self.x[k], self.f[k], self.f_true[k] = t, meas.p_W, meas.f_W, meas.f_true_W
+        self.x_d[k] = runtime.desired_position(t) if out is not None else meas.p_W
+        self.f_d[k] = runtime.f_d_W
+        self.theta[k] = runtime.theta_hat
+        self.tau.append(np.zeros_like(meas.q) if tau is None else tau)
+        self.mode.append('none' if out is None else str(out.mode))
+
+    def result(self, delays: list[float]) -> LoopLog:
+        return LoopLog(self.t, self.x, self.x_d, self.f, self.f_true, self.f_d, self.theta,
+                       np.array(self.tau), self.mode, self.commands, self.ticks,
+                       np.array(delays), np.array(self.tick_ns))

@@ -58,10 +58,11 @@ class StiffnessAwareController(HybridForceController):
     the stiffness estimate each tick. ``nominal`` is the user's parameter set."""
 
     def __init__(self, model: RobotModel, params: ControllerParams, estimator: StiffnessEstimator,
-                 mode: str = 'bandwidth', rdot_term: bool = True) -> None:
+                 mode: str = 'bandwidth', rdot_term: bool = True, scale_gamma: bool = True) -> None:
         if mode not in MODES:
             raise ValueError(f'mode must be one of {MODES}, got {mode!r}')
         self.nominal, self.estimator, self.mode, self.rdot_term = params, estimator, mode, rdot_term
+        self.scale_gamma = scale_gamma
         self.log_rate = 0.0
         super().__init__(model, params)
 
@@ -77,7 +78,7 @@ class StiffnessAwareController(HybridForceController):
             return dataclasses.replace(p0, k_s=k_s)
         ratio = p0.k_s / k_s
         return dataclasses.replace(p0, k_s=k_s, lambda2=p0.lambda2 * ratio,
-                                   Gamma=p0.Gamma / ratio)
+                                   Gamma=p0.Gamma / ratio if self.scale_gamma else p0.Gamma)
 
     def _apply(self, k_s: float, force: bool = False) -> None:
         if k_s == self.params.k_s and not force:
@@ -117,6 +118,7 @@ class PrototypeConfig:
     substeps: int = 2
     mode: str = 'bandwidth'
     rdot_term: bool = True
+    scale_gamma: bool = True
     f_d_step: tuple[float, float] | None = None  # (time s, new f_d N)
     k_s_fixed: float | None = None  # the gains of `mode` at this k_s, the estimate unused
     stiffness: StiffnessConfig = StiffnessConfig(enabled=True)
@@ -150,7 +152,7 @@ def run_prototype(cfg: PrototypeConfig, model: RobotModel | None = None) -> Prot
     est = StiffnessEstimator(dataclasses.replace(
         cfg.stiffness, k_max=params.k_max, k_hat0=params.k_s,
         force_filter_hz=params.force_filter_hz))
-    ctrl = StiffnessAwareController(model, params, est, cfg.mode, cfg.rdot_term)
+    ctrl = StiffnessAwareController(model, params, est, cfg.mode, cfg.rdot_term, cfg.scale_gamma)
     if cfg.k_s_fixed is not None:
         est = ctrl.estimator = StiffnessEstimator(dataclasses.replace(
             est.config, enabled=False, k_hat0=cfg.k_s_fixed))

@@ -283,6 +283,14 @@ def test_bad_dt_is_rejected(dt):
     assert est.k_hat == 6000.0
 
 
+@pytest.mark.parametrize('f_n, x_n', [(None, X0), (1.0, 'x'), ([1.0], X0)])
+def test_non_numeric_samples_are_rejected(f_n, x_n):
+    est = make()
+    with pytest.raises(StiffnessError, match='numbers'):
+        est.update(f_n, x_n, DT, True)
+    assert est.k_hat == 6000.0 and est.samples_used == 0
+
+
 def test_bad_reset_and_constructor_arguments_are_rejected():
     with pytest.raises(StiffnessConfigError):
         StiffnessEstimator({'k_min': 50.0})

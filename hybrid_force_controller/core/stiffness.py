@@ -3,9 +3,9 @@
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
 
-Pure Python + numpy-free arithmetic on floats (2 x 2 closed forms); time is an argument,
-nothing reads a clock, nothing is allocated per call. Equations (S1)-(S8) are this
-module's; docs/design.md, "Online stiffness estimate", explains the choices.
+Pure Python: the 2 x 2 closed forms on floats need no numpy. Time is an argument, nothing
+reads a clock, nothing is allocated per call beyond Python floats. Equations (S0)-(S8) are
+this module's; docs/design.md, "Online stiffness estimate", explains the choices.
 
 Model. Eqs. (12)-(13), ``f = k n n^T (x - x0)`` inside the surface and ``f = 0`` outside,
 read along ``n`` with ``f_n = n^T f`` and ``x_n = n^T x`` (base frame) while in contact::
@@ -104,9 +104,11 @@ STIFFNESS_SCHEMA: tuple[ParamSpec, ...] = (
     _S('stiffness_k_hat0', 'double', 0.0,
        'Initial stiffness estimate and k_s command, N/m (0: the configured k_s).', 0.0, 1e8),
     _S('stiffness_time_constant', 'double', 2.0,
-       'Forgetting time constant T_f of the estimator, s of exciting contact.', 0.01, 1e4),
+       'Forgetting time constant T_f of the estimator, s of exciting contact (>= 20 periods).',
+       0.01, 1e4),
     _S('stiffness_excitation', 'double', 0.05,
-       'Excitation dead zone delta_f: k_hat |x_n - x_bar| below it is not used, N.', 0.0, 1e3),
+       'Excitation dead zone delta_f: samples with k_e |x_n - x_bar| below it are not used, N.',
+       0.0, 1e3),
     _S('stiffness_excitation_window', 'double', 0.2,
        'Time constant T_e of the mean x_bar of x_n in the excitation test, s.', 0.001, 1e3),
     _S('stiffness_valid_tol', 'double', 0.05,
@@ -138,7 +140,7 @@ class StiffnessConfig:
         ``k_hat0`` (the estimate still runs, for diagnostics).
     k_min, k_max : bounds of k_hat, N/m (``0 < k_min < k_max``).
     k_hat0 : initial k_hat and k_s command, N/m, inside the bounds.
-    time_constant : T_f of (S3), s.
+    time_constant : T_f of (S3), s; at least 20 control periods, else (S6) never holds.
     excitation : delta_f of (S5), N.
     excitation_window : T_e of (S5), s.
     valid_tol : tol of (S6).
@@ -275,7 +277,7 @@ class StiffnessEstimator:
         c = self.config
         k0 = self.k_hat if k_prior is None else float(k_prior)
         if not (math.isfinite(k0) and c.k_min <= k0 <= c.k_max):
-            raise StiffnessError(f'k_hat0 = {k0} is outside [{c.k_min:g}, {c.k_max:g}]')
+            raise StiffnessError(f'prior k_hat0 = {k0} is outside [{c.k_min:g}, {c.k_max:g}]')
         self._kappa0 = self._kappa = k0 / c.k_max
         self._b = self._b0 = 0.0
         rho = c.regularisation
@@ -345,10 +347,14 @@ class StiffnessEstimator:
         in_contact : the caller's contact test; samples out of contact are ignored.
 
         Non-finite ``f_n`` / ``x_n`` are ignored and counted (``samples_rejected``).
-        Raises :class:`StiffnessError` on a bad ``dt``.
+        Raises :class:`StiffnessError` on a bad ``dt`` or a non-numeric sample.
         """
         _, lam, alpha, a = self._factors(dt)
         self.excited, self.excitation_n = False, 0.0
+        try:
+            f_n, x_n = float(f_n), float(x_n)
+        except (TypeError, ValueError):
+            raise StiffnessError(f'f_n and x_n must be numbers, got {f_n!r}, {x_n!r}') from None
         if not (math.isfinite(f_n) and math.isfinite(x_n)):
             self.samples_rejected += 1
             return self.k_hat
@@ -388,7 +394,7 @@ class StiffnessEstimator:
         clipped = min(max(kappa, c.k_min / c.k_max), 1.0)
         b -= r_ub / r_bb * (clipped - kappa)  # projection in the metric R
         self._kappa, self._b = clipped, b
-        self.saturated = clipped != kappa
+        self.saturated = bool(clipped != kappa)
         self._r_uu, self._r_ub, self._r_bb = r_uu, r_ub, r_bb
         post = f_n - (u * clipped + b)
         self._w = lam * self._w + 1.0

@@ -24,6 +24,8 @@ be measured before it is implemented. What each tick does (module docstring of
 
 Modes: ``'off'`` (k_s fixed, the current controller), ``'k_s'`` (k_s := k_hat only, the
 literal reading), ``'bandwidth'`` (all of the above).
+
+    .venv/bin/python test/stiffness_prototype.py [--extras]   # the tables of the report
 """
 from __future__ import annotations
 
@@ -261,5 +263,56 @@ def _print_closed_loop() -> None:
                   f"{r['contact_lost']}")
 
 
+def _print_extras() -> None:
+    """The figures behind the phase-2 proposal: Gamma scaling, estimate errors, cost."""
+    import timeit
+    print('Adaptation with and without Gamma = Gamma_0 k_s/k_s0 (masses 50 % low, 20 s)')
+    for k in (300.0, 1700.0):
+        for mode, scale_gamma in (('off', True), ('bandwidth', True), ('bandwidth', False)):
+            res = run_prototype(PrototypeConfig(k=k, theta_hat0_scale=0.5, mode=mode,
+                                                scale_gamma=scale_gamma))
+            off = np.flatnonzero(np.any(np.abs(res.theta_hat - res.theta_true)
+                                        > 0.05 * res.theta_true, axis=1))
+            t5 = res.t[off[-1] + 1] if off.size and off[-1] + 1 < res.t.size else float('inf')
+            print(f'  k {k:5.0f}  {mode:9s}  scale_gamma {scale_gamma!s:5s}  '
+                  f'theta_hat within 5 % from t = {t5:.2f} s')
+    print('Fixed k_s = k / ratio with the gains of mode bandwidth (8 s, t >= 5 s)')
+    for k, ratio in ((500.0, 3.0), (500.0, 5.0), (5000.0, 1.5), (5000.0, 3.0), (5000.0, 5.0)):
+        m = closed_loop_case(k, 0.5, duration=8.0, k_s_fixed=k / ratio)['metrics']
+        print(f"  k {k:5.0f}  k/k_s {ratio:3.1f}  rms f_n err {m['rms_force_error_n']:.4f} N  "
+              f"contact lost {m['contact_lost_s']:.3f} s")
+    print('k_s rate limit and the rdot term (k = 300, masses 50 % low, 6 s): true force error '
+          'over [0.6, 5) s')
+    for rate in (1.0, 2.0, 10.0, 20.0, 100.0):
+        for rdot_term in (True, False):
+            st = StiffnessConfig(enabled=True, k_s_rate_down=rate,
+                                 k_s_time_constant=0.0 if rate == 100.0 else 0.1)
+            res = run_prototype(PrototypeConfig(k=300.0, theta_hat0_scale=0.5, duration=6.0,
+                                                stiffness=st, rdot_term=rdot_term))
+            err = (res.f_true_W @ res.n_W - 1.0)[(res.t >= 0.6) & (res.t < 5.0)]
+            print(f'  rate_down {rate:5.1f}/s  rdot term {rdot_term!s:5s}  '
+                  f'max {np.abs(err).max():.4f} N  rms {np.sqrt(np.mean(err ** 2)):.4f} N  '
+                  f'k_s(1 s) {res.k_s[1000]:.0f} N/m')
+    model = RobotModel.from_urdf()
+    params = make_controller_params(model, {})
+    ctrl = StiffnessAwareController(model, params, StiffnessEstimator(StiffnessConfig()))
+    q, qdot, f_W = np.array(PAPER_Q0), np.array([0.1, -0.2]), np.array([0.0, -1.0, 0.0])
+    ref = SineReference(params.ref_center, params.ref_amplitude, params.ref_omega)(0.3)
+    sets = [ctrl.gains_for(float(k)) for k in np.linspace(300.0, 6000.0, 50)]
+    est = StiffnessEstimator(StiffnessConfig(enabled=True))
+    jobs = {'control step': (lambda: ctrl.step(q, qdot, f_W, ref, 1e-3), 1),
+            'set_params': (lambda: [ctrl.set_params(p) for p in sets], len(sets)),
+            'estimator update + k_s_command': (
+                lambda: [(est.update(1.0, -1.61 + 1e-5 * (i % 3), 1e-3, True),
+                          est.k_s_command(1e-3)) for i in range(50)], 50)}
+    cost = {name: min(timeit.repeat(fn, number=200, repeat=5)) / (200 * per)
+            for name, (fn, per) in jobs.items()}
+    print('Cost relative to one control step (shared machine: ratios only)')
+    for name, c in cost.items():
+        print(f"  {name:32s} {c / cost['control step']:.2f}")
+
+
 if __name__ == '__main__':
     _print_closed_loop()
+    if '--extras' in sys.argv:
+        _print_extras()

@@ -116,9 +116,9 @@ STIFFNESS_SCHEMA: tuple[ParamSpec, ...] = (
        0.0, 1.0, positive=True),
     _S('stiffness_k_s_time_constant', 'double', 0.1,
        'Time constant T_s with which k_s follows a valid k_hat, s.', 0.0, 1e3),
-    _S('stiffness_k_s_rate_down', 'double', 2.0,
+    _S('stiffness_k_s_rate_down', 'double', 10.0,
        'Largest relative decrease rate of k_s, |d ln k_s/dt|, 1/s.', 0.0, 1e3, positive=True),
-    _S('stiffness_k_s_rate_up', 'double', 10.0,
+    _S('stiffness_k_s_rate_up', 'double', 20.0,
        'Largest relative increase rate of k_s, d ln k_s/dt, 1/s.', 0.0, 1e3, positive=True),
     _S('stiffness_k_max_margin', 'double', 0.2,
        'Warn when k_hat >= (1 - margin) k_max (eq. 29 without margin).', 0.0, 1.0),
@@ -162,8 +162,8 @@ class StiffnessConfig:
     excitation_window: float = 0.2
     valid_tol: float = 0.05
     k_s_time_constant: float = 0.1
-    k_s_rate_down: float = 2.0
-    k_s_rate_up: float = 10.0
+    k_s_rate_down: float = 10.0
+    k_s_rate_up: float = 20.0
     k_max_margin: float = 0.2
     regularisation: float = 1e-2
     force_floor: float = 0.01

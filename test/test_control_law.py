@@ -83,7 +83,7 @@ def test_r_matches_the_documented_formula(model):
     ref = sine_ref(ctrl.full, 0.8)
     kin = model.kinematics(Q0, np.array([0.2, 0.1]))
     f = np.array([0.3, -2.5])
-    r, _, df_n, _ = ctrl.reference_velocity(kin, ref, f)
+    r, _, df_n, _, _ = ctrl.reference_velocity(kin, ref, f)
     assert df_n == pytest.approx(2.5 - 2.0)
     P_t = np.eye(2) - np.outer(n, n)
     expected = (P_t @ (ref.xdot_d_W[ax] - 30.0 * (kin.x - ref.x_d_W[ax]))
@@ -101,7 +101,7 @@ def test_returned_e_is_xdot_minus_r(model):
         qdot = rng.uniform(-1.0, 1.0, 2)
         f_W = np.array([0.0, -rng.uniform(0.5, 2.0), 0.0])
         kin = model.kinematics(q, qdot)
-        r, _, _, r_n = ctrl.reference_velocity(kin, ref, f_W[:2])  # r with h before step
+        r = ctrl.reference_velocity(kin, ref, f_W[:2])[0]  # r with h before step
         out = ctrl.step(q, qdot, f_W, ref, DT)
         xdot = task_velocity_from_pinocchio(model, q, qdot)
         np.testing.assert_allclose(out.e, xdot - r, rtol=0.0, atol=1e-12)
@@ -127,7 +127,7 @@ def _record_r(model: RobotModel, k_surface: float, steps: int = 1500):
     for i in range(steps):
         ref = blend_start(sine(i * DT), offset, i * DT, rt.ref_blend_time)
         f = meas.f_W[list(model.task_axes)]
-        r, rdot, _, _ = ctrl.reference_velocity(model.kinematics(meas.q, meas.qdot), ref, f)
+        r, rdot = ctrl.reference_velocity(model.kinematics(meas.q, meas.qdot), ref, f)[:2]
         rs.append(r)
         rdots.append(rdot)
         fns.append(float(n @ f))
@@ -225,7 +225,7 @@ def test_step_adapts_with_k_a_times_e(model):
     ref = sine_ref(ctrl.full, 0.5)
     theta0 = ctrl.theta_hat.copy()
     kin = model.kinematics(q, qdot)
-    r, rdot, _, _ = ctrl.reference_velocity(kin, ref, f_W[:2])
+    r, rdot = ctrl.reference_velocity(kin, ref, f_W[:2])[:2]
     e = kin.xdot - r
     Y_x = model.regressor_x(q, qdot, r, rdot)
     dt = 1e-5

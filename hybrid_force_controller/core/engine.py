@@ -20,7 +20,7 @@ from typing import Any, Callable, Protocol, Sequence
 import numpy as np
 
 from .environment import sensor_wrench_from_f_W
-from .runtime import ControllerRuntime
+from .runtime import ControllerRuntime, Mode
 from .timing import Schedule, TimingModel
 
 __all__ = ['Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop']
@@ -218,7 +218,7 @@ class _Recorder:
         self.f_d[k] = runtime.f_d_W
         self.theta[k] = runtime.theta_hat
         self.tau.append(np.zeros_like(meas.q) if tau is None else tau)
-        self.mode.append('none' if out is None else str(out.mode))
+        self.mode.append('none' if out is None else Mode(out.mode).value)
 
     def result(self, delays: list[float]) -> LoopLog:
         return LoopLog(self.t, self.x, self.x_d, self.f, self.f_true, self.f_d, self.theta,

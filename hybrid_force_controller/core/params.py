@@ -100,7 +100,7 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('min_delay_margin', 'double', 0.005,
        'Smallest loop delay the gains must tolerate (margin.py, at the current pose); a '
        'set leaving less is refused, s (0: no check).', 0.0, 1.0),
-    _S('approach_speed', 'double', 0.02,
+    _S('approach_speed', 'double', 0.025,
        'Out of contact the tool moves into the surface at this speed, m/s (0: no approach, '
        'only the force loop).', 0.0, 1.0),
     _S('approach_limit', 'double', 0.05,

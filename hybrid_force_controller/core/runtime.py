@@ -81,7 +81,7 @@ class _Clock:
     t_used: float = -math.inf
 
 
-HANDOVER_S = 0.01  # approach -> force loop: the normal r demand decays over this, s
+HANDOVER_S = 0.02  # approach -> force loop: the normal r and rdot blend over this, s
 _COUNTERS = ('ticks', 'joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
              'safe_mode_entries', 'control_errors', 'saturated_ticks', 'clock_restarts',
              'approach_entries', 'stale_ticks', 'late_states')
@@ -107,7 +107,8 @@ class ControllerRuntime:
         self._wrench_prev_t, self._new_wrench = -math.inf, False
         self._clock = _Clock()
         self._r_n = 0.0
-        self._handover = (-math.inf, 0.0)  # (stamp, normal r bias) of the last hand-over
+        self._rdot_n = 0.0
+        self._handover = (-math.inf, 0.0, 0.0)  # (stamp, r_n and rdot_n gaps) at hand-over
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -272,7 +273,7 @@ class ControllerRuntime:
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
-        self._r_n = out.r_n
+        self._r_n, self._rdot_n = out.r_n, out.rdot_n
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref.x_d_W, f_W)
@@ -323,18 +324,20 @@ class ControllerRuntime:
         if self.mode == Mode.RUNNING and not touching and self._approach.speed > 0.0:
             self._enter_approach()
         elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
-            f_n = float(self._params.law.n @ f_W)
-            self._handover = (self._state.t, self._r_n - self.ctrl.force_loop_r_n(f_n))
+            r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._params.law.n @ f_W))
+            self._handover = (self._state.t, self._r_n - r_f, self._rdot_n - rdot_f)
             self.mode = Mode.RUNNING
 
     def _handover_bias(self) -> tuple[float, float]:
-        """Bumpless hand-over from an approach: the normal r the approach demanded decays
-        linearly into the force loop's over HANDOVER_S (no integral wind-up)."""
-        t_c, bias = self._handover
-        frac = 1.0 - (self._state.t - t_c) / HANDOVER_S
-        if self.mode != Mode.RUNNING or bias == 0.0 or frac <= 0.0:
+        """Bumpless hand-over from an approach: what the approach demanded of r and rdot
+        along n fades into the force loop's with a cosine over HANDOVER_S (r and rdot stay
+        continuous, so the effort does; no integral wind-up)."""
+        t_c, dr, drdot = self._handover
+        s = (self._state.t - t_c) / HANDOVER_S
+        if self.mode != Mode.RUNNING or s >= 1.0:
             return 0.0, 0.0
-        return bias * frac, -bias / HANDOVER_S
+        w = 0.5 * (1.0 + math.cos(math.pi * max(s, 0.0)))
+        return w * dr, w * drdot
 
     def _enter_approach(self) -> None:
         kin = self.model.kinematics(self._state.q, self._state.qdot)

@@ -33,8 +33,9 @@ class ScenarioConfig:
     The surface passes through the tool's start position (touching, zero force), with
     normal ``n`` (into the surface). ``theta_hat0_scale`` (one factor or one per
     parameter) multiplies the true parameters to give the initial estimate; ``overrides``
-    are controller parameter values; ``timing`` (default: lockstep with ``delay_steps``)
-    and ``events`` (parameter sets, surface moves at given times) go to the engine.
+    are controller parameter values; ``timing`` (default: lockstep with ``delay_steps``),
+    ``events`` (parameter sets, surface moves at given times) and ``input_hook`` (faults
+    on the messages the controller receives) go to the engine.
     """
 
     k: float = 1700.0
@@ -48,6 +49,7 @@ class ScenarioConfig:
     overrides: dict[str, Any] = field(default_factory=dict)
     timing: TimingModel | None = None
     events: Sequence[Event] = ()
+    input_hook: Callable[[float, Any], Any] | None = None
 
 
 @dataclass
@@ -84,7 +86,8 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
     plant = ArmSimulator(model, ElasticSurface.create(cfg.k, p0, params.law.n), q0,
                          substeps=cfg.substeps, noise_sigma=cfg.noise_sigma, seed=cfg.seed)
     timing = TimingModel.lockstep(cfg.delay_steps) if cfg.timing is None else cfg.timing
-    log = run_loop(runtime, plant, cfg.duration, timing, cfg.events, clock_ns=clock_ns)
+    log = run_loop(runtime, plant, cfg.duration, timing, cfg.events, clock_ns=clock_ns,
+                   input_hook=cfg.input_hook)
     n_W = params.law.n
     contact = np.array([in_contact(float(n_W @ f)) for f in log.f_true_W])
     return ScenarioResult(log.t, log.x_W, log.x_d_W, log.f_W, log.f_true_W, log.f_d_W,

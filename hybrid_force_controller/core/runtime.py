@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
 from typing import Any, Sequence
 
 import numpy as np
@@ -37,38 +36,12 @@ from .filters import LowPassFilter
 from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
                      WrenchSample)
 from .margin import delay_margin
+from .modes import Mode, TickOutput
 from .params import ControllerParams, ParameterValidationError, build_params
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
-
-
-class Mode(str, Enum):
-    """The runtime's state (its value is what /diagnostics shows)."""
-
-    WAITING = 'waiting'
-    RUNNING = 'running'
-    APPROACH = 'approach'
-    NO_SURFACE = 'no_surface'
-    SAFE = 'safe'
-
-
-@dataclass
-class TickOutput:
-    """One tick for the node to publish (3-D vectors in the base frame; ``tau`` in the
-    order of ``params.runtime.joints``, None while waiting)."""
-
-    tau: np.ndarray | None
-    mode: Mode
-    x_W: np.ndarray
-    x_d_W: np.ndarray
-    f_W: np.ndarray
-    f_d_W: np.ndarray
-    e_W: np.ndarray
-    theta_hat: np.ndarray
-    in_contact: bool
-    status: str = ''
 
 
 @dataclass

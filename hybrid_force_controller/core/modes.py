@@ -1,0 +1,36 @@
+"""The runtime's modes and what one tick gives the node (pure numpy)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+__all__ = ['Mode', 'TickOutput']
+
+
+class Mode(str, Enum):
+    """The runtime's state (its value is what /diagnostics shows)."""
+
+    WAITING = 'waiting'
+    RUNNING = 'running'
+    APPROACH = 'approach'
+    NO_SURFACE = 'no_surface'
+    SAFE = 'safe'
+
+
+@dataclass
+class TickOutput:
+    """One tick for the node to publish (3-D vectors in the base frame; ``tau`` in the
+    order of ``params.runtime.joints``, None while waiting)."""
+
+    tau: np.ndarray | None
+    mode: Mode
+    x_W: np.ndarray
+    x_d_W: np.ndarray
+    f_W: np.ndarray
+    f_d_W: np.ndarray
+    e_W: np.ndarray
+    theta_hat: np.ndarray
+    in_contact: bool
+    status: str = ''

@@ -1,0 +1,132 @@
+"""The loop engine and its timing model (engine.py, timing.py), and what the runtime does
+with late ticks and gaps (issue 9): offline, deterministic, seeded. No ROS."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybrid_force_controller.core.engine import LoopEngine
+from hybrid_force_controller.core.environment import ElasticSurface
+from hybrid_force_controller.core.params import build_params
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.runtime import ControllerRuntime, Mode
+from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
+from hybrid_force_controller.core.simulator import ArmSimulator
+from hybrid_force_controller.core.timing import Schedule, Stall, TimingError, TimingModel
+
+P = 1e-3
+
+
+def engine(timing: TimingModel, horizon: float = 1.0, **overrides) -> LoopEngine:
+    model = RobotModel.from_urdf()
+    rt = ControllerRuntime(model, build_params(model, overrides))
+    q0 = np.array(PAPER_Q0)
+    p0 = model.kinematics(q0, np.zeros(2)).p_W
+    sim = ArmSimulator(model, ElasticSurface.create(1700.0, p0, rt.params.law.n), q0, substeps=2)
+    return LoopEngine(rt, sim, horizon, timing)
+
+
+# ------------------------------------------------------------------ the timing model
+@pytest.mark.parametrize('d', [0, 1, 3])
+def test_lockstep_delay_is_exactly_d_periods(d):
+    e = engine(TimingModel.lockstep(d), 0.2)
+    log = e.run()
+    assert log.ticks == e.steps  # one tick per plant step
+    np.testing.assert_allclose(log.delays_s[d + 1:], d * P, atol=1e-9)
+
+
+def test_a_controller_stall_skips_ticks_and_the_plant_holds_the_command():
+    e = engine(TimingModel(stalls=(Stall('controller', 0.100, 0.030),)), 0.2)
+    ticks, held = [], []
+    while e.k < e.steps:
+        e.step()
+        if 0.101 <= e.t - P < 0.130:
+            held.append(e.tau_plant.copy())
+        ticks.append(len(e.outputs))
+    ticks = np.array(ticks)
+    assert ticks[101:130].sum() == 0 and ticks[130] == 1  # one late tick at the end
+    assert np.all(np.array(held) == held[0])              # the plant kept the command
+
+
+def test_a_plant_stall_publishes_nothing():
+    e = engine(TimingModel(stalls=(Stall('plant', 0.100, 0.030),)), 0.2)
+    stamps = []
+    while e.k < e.steps:
+        e.step()
+        stamps.append(e.runtime.state_stamp)
+    gaps = np.diff(stamps)
+    assert gaps.max() == pytest.approx(0.031, abs=1e-9)  # the 30 ms without a state
+    assert e.runtime.counters['stale_ticks'] >= 29       # ticks without a new state
+
+
+def test_tick_on_state_ticks_once_per_state():
+    log = engine(TimingModel(tick_on_state=True, latency=2e-4), 0.2).run()
+    assert log.ticks == pytest.approx(200, abs=1)
+    np.testing.assert_allclose(log.delays_s[2:], 2e-4, atol=1e-9)
+
+
+def test_random_draws_repeat_with_the_seed():
+    def delays(seed):
+        return engine(TimingModel.ros_measured(seed=seed), 0.5).run().delays_s
+    np.testing.assert_array_equal(delays(3), delays(3))
+    assert not np.array_equal(delays(3), delays(4))
+
+
+def test_measured_model_has_multi_millisecond_stalls():
+    s = Schedule(TimingModel.ros_measured(seed=0), 20.0)
+    lengths = np.array([b - a for a, b in s._stalls['controller']]) * 1e-9
+    assert 40 <= lengths.size <= 120  # ~4 per second
+    assert lengths.min() >= 1e-3 and lengths.max() <= 30e-3 and lengths.max() > 10e-3
+
+
+@pytest.mark.parametrize('bad', [dict(period=0.0), dict(latency=-1e-3),
+                                 dict(stall_s=(2e-3, 1e-3)), dict(delay_steps=-1),
+                                 dict(stalls=(Stall('sim', 0.0, 0.01),))])
+def test_inconsistent_timing_is_rejected(bad):
+    with pytest.raises(TimingError):
+        TimingModel(**bad)
+
+
+# ------------------------------------------------------------------ gaps and late ticks
+def hiccup_run(who: str, max_integration_dt: float | None = None):
+    stalls = tuple(Stall(who, t, 0.050) for t in (6.0, 7.0, 8.0))
+    overrides = {} if max_integration_dt is None else {'max_integration_dt': max_integration_dt}
+    return run_scenario(ScenarioConfig(theta_hat0_scale=0.5, duration=12.0, overrides=overrides,
+                                       timing=TimingModel.ros_measured(seed=0, stalls=stalls)))
+
+
+@pytest.mark.parametrize('who', ['controller', 'plant'])
+def test_50_ms_gaps_leave_force_effort_and_theta_hat_calm(who):
+    """Three 50 ms gaps (no ticks, or no inputs): the force stays within 0.05 N of f_d,
+    no effort step beyond 0.5 N m, theta_hat within 1 % of the truth, no safe mode."""
+    r = hiccup_run(who)
+    w = r.t >= 5.5
+    f = r.f_true_W[w] @ r.n_W
+    assert np.abs(f - 1.0).max() <= 0.05
+    assert np.abs(np.diff(r.tau[w], axis=0)).max() <= 0.5
+    assert np.abs(r.theta_hat[w] / r.theta_true - 1.0).max() <= 0.01
+    assert r.runtime.counters['safe_mode_entries'] == 0
+    assert r.runtime.counters['late_states'] >= 3  # the gaps were integrated clamped
+
+
+def test_clamping_the_integration_step_halves_the_theta_hat_excursion():
+    """Negative control: a late state allowed to integrate its whole gap moves theta_hat
+    about twice as far."""
+    def excursion(r):
+        w = r.t >= 5.5
+        return np.abs(r.theta_hat[w] / r.theta_true - 1.0).max()
+    clamped, free = hiccup_run('controller'), hiccup_run('controller', 1.0)
+    assert free.runtime.counters['late_states'] == 0
+    assert excursion(free) > 1.5 * excursion(clamped)
+
+
+def test_old_gains_fail_where_the_new_ones_hold():
+    """The real-time failure of the old defaults (K_D 200, adaptation on k_s e) reproduces
+    offline with 2 ms one-way latency; the defaults hold there (10 ms margin)."""
+    timing = TimingModel.ros_measured(seed=0, latency=2e-3)
+    for overrides, holds in (({'k_d': 200.0, 'k_a': 6000.0}, False), ({}, True)):
+        r = run_scenario(ScenarioConfig(theta_hat0_scale=0.5, duration=8.0, timing=timing,
+                                        overrides=overrides))
+        f = r.f_true_W[r.t >= 5.0] @ r.n_W
+        assert bool(np.abs(f - 1.0).max() <= 0.05) is holds, overrides
+        assert (Mode.RUNNING == r.mode[-1]) or not holds

@@ -11,7 +11,7 @@ Why a distance limit: the surface was last seen where contact was lost (or, at s
 near the tool); a surface that moved further than ``approach_limit`` is a changed scene
 (a removed workpiece, a wrong ``n``), and pressing on into free space would only end in a
 collision at speed. So the search is bounded in distance, which bounds its time as
-``limit / speed`` (2.5 s with the defaults), and then the arm holds and reports.
+``limit / speed`` (2 s with the defaults), and then the arm holds and reports.
 """
 from __future__ import annotations
 

@@ -52,25 +52,20 @@ class ScenarioConfig:
     input_hook: Callable[[float, Any], Any] | None = None
 
 
-@dataclass
-class ScenarioResult:
-    """Time series of one run (3-D base-frame vectors), one row per plant step."""
+@dataclass(kw_only=True)
+class ScenarioResult(LoopLog):
+    """The engine's log of one run plus what the analysis needs: contact (the one
+    predicate on the true force), the normal, the true parameters and the runtime."""
 
-    t: np.ndarray
-    x_W: np.ndarray
-    x_d_W: np.ndarray
-    f_W: np.ndarray
-    f_true_W: np.ndarray
-    f_d_W: np.ndarray
-    theta_hat: np.ndarray
     in_contact: np.ndarray
-    tau: np.ndarray
     n_W: np.ndarray
     theta_true: np.ndarray
     theta_names: tuple[str, ...]
-    mode: list[str]
     runtime: ControllerRuntime
-    log: LoopLog
+
+    @property
+    def log(self) -> LoopLog:
+        return self
 
 
 def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
@@ -90,6 +85,6 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
                    input_hook=cfg.input_hook)
     n_W = params.law.n
     contact = np.array([in_contact(float(n_W @ f)) for f in log.f_true_W])
-    return ScenarioResult(log.t, log.x_W, log.x_d_W, log.f_W, log.f_true_W, log.f_d_W,
-                          log.theta_hat, contact, log.tau, n_W.copy(),
-                          model.theta_nominal.copy(), model.theta_names, log.mode, runtime, log)
+    return ScenarioResult(**vars(log), in_contact=contact, n_W=n_W.copy(),
+                          theta_true=model.theta_nominal.copy(),
+                          theta_names=model.theta_names, runtime=runtime)

@@ -300,29 +300,13 @@ class Rig:
         return d
 
     # ------------------------------------------------------------- faults
-    def fault(self, duration: float, js: Hook | None = None, wrench: Hook | None = None,
-              log_offset: int | None = None, until_logged: tuple[str, ...] = ()
+    def fault(self, duration: float, js: Hook | None = None, wrench: Hook | None = None
               ) -> tuple[float, float]:
-        """Play hooks for ``duration`` s of sim time, and on until the controller's log (from
-        ``log_offset``) holds every text of ``until_logged`` (its warnings are throttled
-        per call site, so a text may need more than one bad message); returns (t0, t1)."""
+        """Play hooks for ``duration`` s of sim time; returns (t0, t1)."""
         t0 = self.now
         self.proxy.js_hook, self.proxy.wrench_hook = js, wrench
         try:
             t1 = self.run_for(duration)
-            if until_logged:
-                missing = list(until_logged)
-                deadline = threading.Event()
-                timer = threading.Timer(WALL_TIMEOUT, deadline.set)
-                timer.start()
-                try:
-                    while missing and not deadline.is_set():
-                        t1 = self.run_for(0.02)
-                        log = self.controller.log_since(log_offset or 0)
-                        missing = [m for m in missing if m not in log]
-                finally:
-                    timer.cancel()
-                assert not missing, f'never logged: {missing}\n' + self._tails()
         finally:
             self.proxy.js_hook = self.proxy.wrench_hook = None
         return t0, t1
@@ -365,33 +349,12 @@ class Rig:
         """Checks (1)-(3) of every case around its body: the controller is alive and every
         effort it published meanwhile was finite and within the limits and rate limit."""
         info = {'violations': len(self.proxy.violations), 'cmds': len(self.proxy.cmds),
-                'log': self.controller.log_size(), 'sim_log': self.sim.log_size(),
-                't0': self.now}
+                'sim_log': self.sim.log_size(), 't0': self.now}
         yield info
         assert self.controller.alive, 'the controller process died\n' + self._tails()
         new = self.proxy.violations[info['violations']:]
         assert not new, f'{len(new)} bad efforts published, first: {new[:5]}'
         assert len(self.proxy.cmds) > info['cmds'], 'no effort was published during the case'
-
-    def controller_log(self, info: dict[str, Any]) -> str:
-        return self.controller.log_since(info['log'])
-
-    def wait_logged(self, info: dict[str, Any], *texts: str, within: float = 1.0) -> str:
-        """The controller's log since the case began, once it holds every text (in this
-        order), waiting up to ``within`` s of sim time for it."""
-        t_limit = self.now + within
-
-        def logged(log: str) -> bool:
-            at = 0
-            for text in texts:
-                at = log.find(text, at)
-                if at < 0:
-                    return False
-            return True
-        while not logged(log := self.controller_log(info)) and self.now < t_limit:
-            self.run_for(0.01)
-        assert logged(log), f'the log lacks {texts} in this order:\n{log}'
-        return log
 
     def sim_log(self, info: dict[str, Any]) -> str:
         return self.sim.log_since(info['sim_log'])

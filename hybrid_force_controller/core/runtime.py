@@ -68,6 +68,7 @@ class ControllerRuntime:
         self.ctrl = HybridForceController(model, params.law)
         self.counters = dict.fromkeys(_COUNTERS, 0)
         self.mode, self.status, self.last_fault = Mode.WAITING, 'waiting for inputs', ''
+        self.last_safe_reason = ''
         self._joints = JointInput(model.joint_names, params.runtime.joints)
         self._gate = WrenchGate(model.model.existFrame, 0.0, 0.0)
         self._limiter = EffortLimiter(params.runtime.effort_limits)
@@ -364,6 +365,7 @@ class ControllerRuntime:
         """Hold (effort.SafeHold); the velocity is damped only while it is fresh."""
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
+            self.last_safe_reason = status
             self._hold.latch(f_W)
         self.mode = Mode.SAFE
         law, s = self._params.law, self._state

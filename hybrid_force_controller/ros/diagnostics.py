@@ -39,6 +39,7 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
         status.level, status.message = level, message
         values = {'mode': runtime.mode.value, 'in_contact': runtime.in_contact,
                   **runtime.counters, 'last_input_fault': runtime.last_fault,
+                  'last_safe_reason': runtime.last_safe_reason,
                   'theta_hat': ', '.join(f'{v:.4g}' for v in runtime.theta_hat)}
     values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
                    for k, v in timing.items()})

@@ -152,6 +152,8 @@ class Proxy(Node):
             self.cv.notify_all()
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
+        if not msg.status or msg.status[0].hardware_id != 'hybrid_force_controller':
+            return  # the sim reports on /diagnostics too
         t = stamp_s(msg.header.stamp)
         with self.cv:
             if t <= self.now + 0.5:  # else stamped before a restart of the sim's clock

@@ -68,9 +68,11 @@ class _Listener(Node):
 def loop(tmp_path_factory):
     logs = tmp_path_factory.mktemp('closed_loop')
     domain = domain_id('nodes_closed_loop')
-    procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain, ['-p', 'lockstep:=true']),
+    full = ['-p', 'telemetry_rate_hz:=1000.0']  # every step: the test counts samples
+    procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain,
+                         ['-p', 'lockstep:=true', *full]),
              NodeProcess('hybrid_force_controller.ros.controller_node', logs / 'controller.log',
-                         domain, ['-p', 'use_sim_time:=true'])]
+                         domain, ['-p', 'use_sim_time:=true', *full])]
     spun = Spun(domain)
     listener = spun.add(_Listener(spun.context))
     try:

@@ -57,7 +57,8 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def controller():
-    running = _Running(lambda ctx: [ControllerNode(context=ctx),
+    bundled = [Parameter('use_bundled_model', value=True)]
+    running = _Running(lambda ctx: [ControllerNode(context=ctx, parameter_overrides=bundled),
                                     Node('param_tester', context=ctx)])
     node, tester = running.nodes
     client = AsyncParameterClient(tester, 'hybrid_force_controller')

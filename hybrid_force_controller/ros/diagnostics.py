@@ -15,13 +15,15 @@ _LEVEL = {'running': DiagnosticStatus.OK, 'waiting': DiagnosticStatus.WARN,
 
 
 def controller_status(stamp, node_name: str, out: TickOutput | None,
-                      timing: Mapping[str, float], callback_errors: Mapping[str, int]
-                      ) -> DiagnosticArray:
-    """One DiagnosticStatus: mode, contact, dropped-message counts and loop timing."""
+                      timing: Mapping[str, float], callback_errors: Mapping[str, int],
+                      extra: Mapping[str, object] | None = None) -> DiagnosticArray:
+    """One DiagnosticStatus: mode, contact, dropped-message counts, loop timing and
+    ``extra`` (lifecycle state, delay and command rate); floats as 4 significant digits."""
     status = DiagnosticStatus(name=f'{node_name}: hybrid force/motion control',
                               hardware_id=node_name)
     if out is None:
-        status.level, status.message = DiagnosticStatus.WARN, 'no tick yet'
+        state = (extra or {}).get('lifecycle_state', '')
+        status.level, status.message = DiagnosticStatus.WARN, f'no tick yet {state}'.strip()
         values: dict[str, object] = {}
     else:
         status.level, status.message = _LEVEL.get(out.mode, DiagnosticStatus.ERROR), out.status
@@ -30,5 +32,7 @@ def controller_status(stamp, node_name: str, out: TickOutput | None,
     values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
                    for k, v in timing.items()})
     values.update({f'callback_errors_{k}': v for k, v in callback_errors.items()})
+    values.update({k: (f'{v:.4g}' if isinstance(v, float) else v)
+                   for k, v in (extra or {}).items()})
     status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])

@@ -72,7 +72,7 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
      '(sim time in lockstep).', 1e-6, 60.0, {}),
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
-    ('max_catch_up', 'integer', 50, 'Real time: most periods a late timer callback '
+    ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
      'integrates (older time is dropped and counted).', 1, 100000, {}),
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
      0.0, 1e5, {}),

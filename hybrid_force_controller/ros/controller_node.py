@@ -277,8 +277,8 @@ class ControllerNode(LifecycleNode):
         self._t_tick = now_ns * 1e-9
         out = self._last = self.runtime.tick(self._t_tick)
         if out.tau is not None:
-            self.outputs.publish_effort(out.tau)
-            self.delay.record(self._now() - self._t_state)
+            self.outputs.publish_effort(out.tau)  # delay: node clock at the tick + elapsed
+            self.delay.record(self._t_tick + (time.perf_counter() - t_start) - self._t_state)
             self.commands.count += 1
             self._k_tick += 1
             if self._decimation and self._k_tick % self._decimation == 0:

@@ -258,7 +258,7 @@ class SimNode(Node):
         values = {**self.counters,
                   'commands_per_s': f'{self.command_rate.rate(time.monotonic()):.4g}',
                   'sim_time_s': f'{self.sim.t:.4f}', 'lockstep': self.lockstep}
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{self.get_name()}: simulated arm',
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: simulated arm',
                                   message='running', hardware_id=self.get_name(),
                                   values=[KeyValue(key=k, value=str(x)) for k, x in values.items()])
         self.pub_diag.publish(DiagnosticArray(header=Header(stamp=stamp), status=[status]))

@@ -176,14 +176,15 @@ class ControllerNode(LifecycleNode):
             self.last_error = str(exc)
             self.get_logger().error(f'configure failed: {exc}')
             return _FAIL
+        self._ran = False  # a fresh runtime starts from the arm by itself
         self.outputs = ControllerOutputs(self, self.model.base_link, self.model.n,
                                          self.model.theta_names)
         qos_in = sensor_in_qos(self.node_values['sensor_qos'])
-        for topic, kind, callback, qos in (
-                (TOPIC_JOINT_STATES, JointState, self._on_joint_state, qos_in),
-                (TOPIC_WRENCH, WrenchStamped, self._on_wrench, qos_in),
-                ('~/reference', PointStamped, self._on_reference, DEFAULT_QOS)):
-            sub = self.create_subscription(kind, topic, self._guarded(topic, callback), qos)
+        for name, topic, kind, callback, qos in (
+                ('joint_states', TOPIC_JOINT_STATES, JointState, self._on_joint_state, qos_in),
+                ('wrench', TOPIC_WRENCH, WrenchStamped, self._on_wrench, qos_in),
+                ('reference', '~/reference', PointStamped, self._on_reference, DEFAULT_QOS)):
+            sub = self.create_subscription(kind, topic, self._guarded(name, callback), qos)
             self._entities.append((self.destroy_subscription, sub))
         self.state_label = 'inactive'
         self.get_logger().info(f'configured: {self.model.n} joints, base '
@@ -192,7 +193,9 @@ class ControllerNode(LifecycleNode):
         return _OK
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.runtime.restart_clock()  # forget old inputs: the next start blends from the arm
+        if self._ran:  # re-activation: forget old inputs, the next start blends from the arm
+            self.runtime.restart_clock()  # (counted in clock_restarts; a fresh one is not)
+        self._ran = True
         self._reset_timing()
         period = self._period = 1.0 / self.runtime.params.rate_hz
         if self.node_values['tick_mode'] == 'timer':
@@ -299,7 +302,8 @@ class ControllerNode(LifecycleNode):
             extra['configure_error'] = self.last_error
         self.pub_diag.publish(controller_status(self.get_clock().now().to_msg(), self.get_name(),
                                                 self._last, self.loop_stats.summary(),
-                                                self.errors, extra))
+                                                self.errors, extra,
+                                                self.get_fully_qualified_name()))
 
 
 HELP_PARAMETERS = (

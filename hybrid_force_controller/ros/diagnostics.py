@@ -16,10 +16,11 @@ _LEVEL = {'running': DiagnosticStatus.OK, 'waiting': DiagnosticStatus.WARN,
 
 def controller_status(stamp, node_name: str, out: TickOutput | None,
                       timing: Mapping[str, float], callback_errors: Mapping[str, int],
-                      extra: Mapping[str, object] | None = None) -> DiagnosticArray:
+                      extra: Mapping[str, object] | None = None,
+                      qualified_name: str = '') -> DiagnosticArray:
     """One DiagnosticStatus: mode, contact, dropped-message counts, loop timing and
     ``extra`` (lifecycle state, delay and command rate); floats as 4 significant digits."""
-    status = DiagnosticStatus(name=f'{node_name}: hybrid force/motion control',
+    status = DiagnosticStatus(name=f'{qualified_name or node_name}: hybrid force/motion control',
                               hardware_id=node_name)
     if out is None:
         state = (extra or {}).get('lifecycle_state', '')

@@ -7,23 +7,31 @@ from typing import Callable, Sequence
 __all__ = ['interruptible', 'paper', 'report']
 
 
-def interruptible(main: Callable[[Sequence[str] | None], int], name: str,
+def interruptible(load: Callable[[], Callable[[Sequence[str] | None], int]], name: str,
                   argv: Sequence[str] | None = None) -> int:
-    """Run ``main(argv)``; a KeyboardInterrupt (SIGINT) ends it with exit code 0."""
+    """Import the program (``load()``) and run it; SIGINT ends it with exit code 0."""
     try:
-        return main(argv)
+        return load()(argv)
     except KeyboardInterrupt:
         print(f'{name}: interrupted', file=sys.stderr)
         return 0
 
 
+def _paper_main() -> Callable[[Sequence[str] | None], int]:
+    from ..tools.paper import main
+    return main
+
+
+def _report_main() -> Callable[[Sequence[str] | None], int]:
+    from ..tools.report import main
+    return main
+
+
 def paper(argv: Sequence[str] | None = None) -> int:
     """``paper``: the paper's scenario offline (tools.paper)."""
-    from ..tools.paper import main
-    return interruptible(main, 'paper', argv)
+    return interruptible(_paper_main, 'paper', argv)
 
 
 def report(argv: Sequence[str] | None = None) -> int:
     """``report``: figures and metrics from a bag (tools.report)."""
-    from ..tools.report import main
-    return interruptible(main, 'report', argv)
+    return interruptible(_report_main, 'report', argv)

@@ -41,7 +41,9 @@ class _Diagnostics:
         self.received: dict[str, float] = {}
         self.lock = threading.Lock()
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain)
+        from rclpy.signals import SignalHandlerOptions
+        rclpy.init(context=self.context, domain_id=domain,  # Ctrl-C: KeyboardInterrupt
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('ros_bench', context=self.context)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.executor = make_executor('single_threaded', self.context)

@@ -1,4 +1,4 @@
-"""ament_python package: installs the ament index marker, package.xml, config/ and the robot files."""
+"""ament_python package: the ament index marker, package.xml, README, config/, robot files."""
 from glob import glob
 
 from setuptools import find_packages, setup

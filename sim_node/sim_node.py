@@ -1,4 +1,5 @@
-"""``sim`` node: the simulated arm against the elastic surface, as a ros2_control-like robot.
+"""
+``sim`` node: the simulated arm against the elastic surface, as a ros2_control-like robot.
 
 Publishes ``joint_states``, ``force_torque_sensor_broadcaster/wrench`` (force the
 environment exerts on the tool, in ``tool0``, with noise; published just before the joint
@@ -27,30 +28,28 @@ import sys
 import time
 from typing import Any, Callable
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
+from hybrid_force_controller.core.environment import (ElasticSurface, sensor_wrench_from_f_W,
+                                                      SurfaceError)
+from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
+                                                 ParamSpec as _S)
+from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
+from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
+from hybrid_force_controller.ros.loop_timing import RateMeter
+from hybrid_force_controller.ros.model_source import expand_description
+from hybrid_force_controller.ros.node_params import check_choice, EXECUTOR_SPEC
+from hybrid_force_controller.ros.parameters import declare_schema, ParameterBinder
+from hybrid_force_controller.ros.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS, DESCRIPTION_QOS,
+                                             STATE_OUT_QOS)
+from hybrid_force_controller.ros.runner import EXECUTORS, print_help, run_node, wants_help
+import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, String
-
-from hybrid_force_controller.core.environment import (ElasticSurface, SurfaceError,
-                                                 sensor_wrench_from_f_W)
-from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
-                                            ParamSpec as _S)
-from hybrid_force_controller.core.robot_model import RobotModel, default_urdf_path
-from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
-from hybrid_force_controller.ros.loop_timing import RateMeter
-from hybrid_force_controller.ros.model_source import expand_description
-from hybrid_force_controller.ros.node_params import EXECUTOR_SPEC, check_choice
-from hybrid_force_controller.ros.parameters import ParameterBinder, declare_schema
-from hybrid_force_controller.ros.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS,
-                                             DESCRIPTION_QOS, STATE_OUT_QOS)
-from hybrid_force_controller.ros.runner import (EXECUTORS, print_help, run_node,
-                                                wants_help)
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
 
@@ -148,7 +147,7 @@ class SimNode(Node):
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
 
     def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None]:
-        """The surface the values describe (None when disabled); SurfaceError says why not."""
+        """Build the surface the values describe (None when disabled); SurfaceError if not."""
         if not isinstance(v['stiffness'], float) or not isinstance(v['surface_enabled'], bool):
             raise SurfaceError('stiffness must be a number and surface_enabled a bool')
         surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or self.p0_W,
@@ -227,8 +226,11 @@ class SimNode(Node):
         self._publish(meas)
 
     def _publish(self, meas: Measurement) -> None:
-        """The newest state: wrench first, then the joint state (a controller that ticks on
-        the joint state then has the wrench of the same step)."""
+        """
+        Publish the newest state: the wrench first, then the joint state.
+
+        So a controller that ticks on the joint state has the wrench of the same step.
+        """
         stamp = (Time(nanoseconds=round(meas.t * 1e9)) if self.lockstep
                  else self.get_clock().now()).to_msg()
         js, ft, true = self.js, self.ft, self.true
@@ -258,9 +260,10 @@ class SimNode(Node):
         values = {**self.counters,
                   'commands_per_s': f'{self.command_rate.rate(time.monotonic()):.4g}',
                   'sim_time_s': f'{self.sim.t:.4f}', 'lockstep': self.lockstep}
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: simulated arm',
-                                  message='running', hardware_id=self.get_name(),
-                                  values=[KeyValue(key=k, value=str(x)) for k, x in values.items()])
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: simulated arm',
+            message='running', hardware_id=self.get_name(),
+            values=[KeyValue(key=k, value=str(x)) for k, x in values.items()])
         self.pub_diag.publish(DiagnosticArray(header=Header(stamp=stamp), status=[status]))
 
 
@@ -279,7 +282,7 @@ HELP_PARAMETERS = (
 def main(args: list[str] | None = None) -> int:
     """Run the simulator until SIGINT/SIGTERM (0); 1 if its parameters are invalid."""
     if wants_help(args):
-        print_help('sim', 'Simulated arm against an elastic surface (node \'sim\'): efforts in, '
+        print_help('sim', "Simulated arm against an elastic surface (node 'sim'): efforts in, "
                    'joint_states + F/T wrench out.', HELP_PARAMETERS)
         return 0
     return run_node(SimNode, 'sim', args)

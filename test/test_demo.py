@@ -1,19 +1,19 @@
-"""The README's main command end to end: demo -> MCAP bag -> report (real DDS).
+"""
+The README's main command end to end: demo -> MCAP bag -> report (real DDS).
 
 Run twice: the default (real time, as the README runs it: loose bounds, the machine may be
 loaded) and ``--lockstep`` (deterministic: exact message counts and the paper's figures).
 """
 import json
 import os
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
-
-import pytest
-from rosbags.highlevel import AnyReader
 
 from hybrid_force_controller.tools.bag_io import RECORD_TOPICS
+import pytest
 from ros_helpers import domain_id
+from rosbags.highlevel import AnyReader
 
 REPO = Path(__file__).resolve().parents[1]
 DURATION_S = 6.0

@@ -1,4 +1,5 @@
-"""The controller as a managed node, driven over its lifecycle services (real DDS, real time).
+"""
+The controller as a managed node, driven over its lifecycle services (real DDS, real time).
 
 ``autostart:=false``: the node starts unconfigured and commands nothing; parameters can be
 set (and are validated) in every state; configure -> activate starts commanding;
@@ -10,18 +11,17 @@ from __future__ import annotations
 
 import threading
 
-import numpy as np
-import pytest
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
+import numpy as np
+import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
+from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-
-from ros_helpers import NodeProcess, Spun, domain_id, wait_for, wait_future
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
 NAME = 'hybrid_force_controller'
@@ -62,7 +62,7 @@ class _Watcher(Node):
         req = ChangeState.Request(transition=Transition(id=transition_id))
         return wait_future(self.change_state.call_async(req)).success
 
-    def set(self, **values):
+    def set_params(self, **values):
         params = [Parameter(k, value=v) for k, v in values.items()]
         return wait_future(self.params.set_parameters(params)).results
 
@@ -101,13 +101,13 @@ def test_transitions_over_the_lifecycle_services_without_effort_jump(rig):
     assert w.state() == 'unconfigured'
     _no_commands_while(w, procs)
     # parameters: model-free checks before configure
-    assert w.set(f_d=1.0)[0].successful
-    (bad,) = w.set(lambda1=10.0)
+    assert w.set_params(f_d=1.0)[0].successful
+    (bad,) = w.set_params(lambda1=10.0)
     assert not bad.successful and '1200' in bad.reason, bad.reason
     assert w.transition(Transition.TRANSITION_CONFIGURE)
     assert w.state() == 'inactive'
     _no_commands_while(w, procs)
-    (bad,) = w.set(gamma=[70.0, 70.0, 70.0])  # full validation once the model is loaded
+    (bad,) = w.set_params(gamma=[70.0, 70.0, 70.0])  # full validation once the model is loaded
     assert not bad.successful and 'gamma' in bad.reason, bad.reason
     assert w.transition(Transition.TRANSITION_ACTIVATE)
     assert w.state() == 'active'
@@ -132,7 +132,7 @@ def test_transitions_over_the_lifecycle_services_without_effort_jump(rig):
     assert w.transition(Transition.TRANSITION_DEACTIVATE)
     assert w.transition(Transition.TRANSITION_CLEANUP)
     assert w.state() == 'unconfigured'
-    assert w.set(f_d=1.5)[0].successful  # parameter services still work
+    assert w.set_params(f_d=1.5)[0].successful  # parameter services still work
     assert w.transition(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
     assert w.state() == 'finalized'
     assert all(p.alive for p in procs)

@@ -1,4 +1,5 @@
-"""Two arms side by side: a sim and a controller in ``/arm1``, another pair in ``/arm2``.
+"""
+Two arms side by side: a sim and a controller in ``/arm1``, another pair in ``/arm2``.
 
 Every topic is relative, so ``-r __ns:=/armN`` moves them all (only ``/diagnostics`` stays
 global). Checked over real DDS: the graph (who subscribes and publishes what), and that
@@ -9,19 +10,20 @@ from __future__ import annotations
 
 import threading
 
+from geometry_msgs.msg import WrenchStamped
 import numpy as np
 import pytest
-from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-
-from ros_helpers import NodeProcess, Spun, domain_id, wait_for
+from ros_helpers import domain_id, NodeProcess, Spun, wait_for
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
 F_D = {'/arm1': 1.0, '/arm2': 2.0}
 
 
 class _Forces(Node):
+    """True contact force of each arm's sim."""
+
     def __init__(self, context) -> None:
         super().__init__('namespace_watcher', context=context)
         self.lock = threading.Lock()

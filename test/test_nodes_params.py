@@ -1,23 +1,22 @@
-"""Parameter handling of the controller node through the parameter services (real DDS).
+"""
+Parameter handling of the controller node through the parameter services (real DDS).
 
 The node runs in-process with its own context and domain; the tests talk to it with
 :class:`rclpy.parameter_client.AsyncParameterClient`, which is what ``ros2 param set`` uses.
 """
 import math
-import threading
 from pathlib import Path
+import threading
 
+from hybrid_force_controller.ros.controller_node import ControllerNode
 import numpy as np
 import pytest
-
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
-
-from hybrid_force_controller.ros.controller_node import ControllerNode
 from ros_helpers import domain_id
 from sim_node.sim_node import SimNode
 
@@ -27,7 +26,7 @@ PARAMS_FILE = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
 
 
 def _wait(future):
-    """Result of a future completed by the background executor (fails after TIMEOUT)."""
+    """Return the result of a future completed by the background executor (or fail)."""
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     assert done.wait(TIMEOUT), 'no answer from the parameter service'
@@ -199,8 +198,7 @@ def test_empty_arrays_at_start_up_mean_default(tmp_path):
 
 
 def test_dump_and_reload(controller, tmp_path):
-    """Every parameter read over the services, written as ``ros2 param dump`` writes it,
-    starts an identical node."""
+    """Dump every parameter as ``ros2 param dump`` does; the dump starts an identical node."""
     import yaml
     node, client = controller
     names = _wait(client.list_parameters()).result.names

@@ -1,4 +1,5 @@
-"""QoS of the controller's inputs: best-effort sensor publishers must reach it.
+"""
+QoS of the controller's inputs: best-effort sensor publishers must reach it.
 
 This process plays the robot: it publishes ``joint_states`` and the F/T ``wrench`` with
 ``qos_profile_sensor_data`` (BEST_EFFORT, as many F/T drivers do). With the default
@@ -10,15 +11,14 @@ from __future__ import annotations
 
 import threading
 
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+import pytest
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-
-from ros_helpers import NodeProcess, Spun, domain_id, parse_diagnostics, wait_for
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
 
@@ -33,8 +33,8 @@ class _Robot(Node):
         self.diag: dict = {}
         self.sent = 0
         self.pub_js = self.create_publisher(JointState, 'joint_states', qos_profile_sensor_data)
-        self.pub_ft = self.create_publisher(WrenchStamped, 'force_torque_sensor_broadcaster/wrench',
-                                            qos_profile_sensor_data)
+        self.pub_ft = self.create_publisher(
+            WrenchStamped, 'force_torque_sensor_broadcaster/wrench', qos_profile_sensor_data)
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, QoSProfile(depth=100))
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)

@@ -1,4 +1,5 @@
-"""Closed loop in real time over real DDS (no lockstep): sim and controller on the wall clock.
+"""
+Closed loop in real time over real DDS (no lockstep): sim and controller on the wall clock.
 
 (a) the sim's link masses are 50 % off the URDF's (0.65 and 1.35 kg vs 1.3 and 0.9 kg):
 contact is kept, the force stays bounded and the tool tracks the path within loose bounds;
@@ -18,16 +19,15 @@ import signal
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PointStamped, WrenchStamped
 import numpy as np
 import pytest
-from geometry_msgs.msg import PointStamped, WrenchStamped
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from diagnostic_msgs.msg import DiagnosticArray
-
-from ros_helpers import NodeProcess, Spun, domain_id, parse_diagnostics, wait_for
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
 N_W = np.array([0.0, -1.0, 0.0])
@@ -102,7 +102,8 @@ class _Watcher(Node):
 
     def tangential_rms(self, t0: float, t1: float) -> float:
         with self.lock:
-            pairs = [(x, self.x_d[t]) for t, x in self.x.items() if t0 <= t <= t1 and t in self.x_d]
+            pairs = [(x, self.x_d[t]) for t, x in self.x.items()
+                     if t0 <= t <= t1 and t in self.x_d]
         assert len(pairs) > 10, f'only {len(pairs)} position samples in [{t0:.2f}, {t1:.2f}]'
         e = [P_TANGENT @ (x - x_d) for x, x_d in pairs]
         return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
@@ -207,8 +208,12 @@ def test_sim_holds_the_arm_until_the_first_command(tmp_path):
 
 
 def test_sim_physics_keeps_wall_time_when_its_process_stalls(tmp_path):
-    """Frozen for 30 ms (< max_catch_up): the late callback integrates the missed periods,
-    so sim time keeps pace with the wall clock and nothing is dropped."""
+    """
+    Freeze the sim for 30 ms (< max_catch_up): the late callback catches up.
+
+    It integrates the missed periods, so sim time keeps pace with the wall clock and
+    nothing is dropped.
+    """
     domain = domain_id('sim_node')
     sim = NodeProcess('sim_node.sim_node', tmp_path / 'sim.log', domain)
     with Spun(domain) as spun:

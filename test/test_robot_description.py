@@ -1,19 +1,20 @@
-"""Where the robot model comes from: the robot_description topic, a .xacro path, the bundled
-arm only when asked, and a clear reason when nothing was given."""
+"""
+Where the robot model comes from.
+
+The robot_description topic, a .xacro path, the bundled arm only when asked, and a clear
+reason when nothing was given.
+"""
 from __future__ import annotations
 
-from pathlib import Path
-
-import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.parameter import Parameter
-from std_msgs.msg import String
-
 from hybrid_force_controller.core.params import ParameterValidationError
 from hybrid_force_controller.core.robot_model import default_urdf_path
 from hybrid_force_controller.ros.controller_node import ControllerNode
 from hybrid_force_controller.ros.qos import DESCRIPTION_QOS
-from ros_helpers import ROOT, NodeProcess, Spun, domain_id, parse_diagnostics, wait_for
+import pytest
+from rclpy.parameter import Parameter
+from ros_helpers import domain_id, NodeProcess, parse_diagnostics, ROOT, Spun, wait_for
+from std_msgs.msg import String
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
 PANDA = ROOT / 'config' / 'panda_params.yaml'

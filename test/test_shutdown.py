@@ -1,5 +1,8 @@
-"""Command line and shutdown of every executable: ``--help`` prints usage and exits 0; SIGINT
-(Ctrl-C) to a running process ends it with exit code 0 and no traceback.
+"""
+Command line and shutdown of every executable.
+
+``--help`` prints usage and exits 0; SIGINT (Ctrl-C) to a running process ends it with
+exit code 0 and no traceback.
 
 The executables are started the way their console scripts call them (setup.py's entry
 points, checked here). A process is signalled once it is demonstrably running (a log line,
@@ -8,16 +11,15 @@ its children, or CPU time spent in its main), never after a bare sleep. ``report
 """
 from __future__ import annotations
 
+from pathlib import Path
 import re
 import signal
 import subprocess
 import sys
-from pathlib import Path
-
-import pytest
 
 from hybrid_force_controller.ros.load import cpu_seconds
-from ros_helpers import ROOT, NodeProcess, domain_id, node_env, wait_for
+import pytest
+from ros_helpers import domain_id, node_env, NodeProcess, ROOT, wait_for
 
 ENTRY_POINTS = {
     'controller': 'hybrid_force_controller.ros.controller_node:main',
@@ -31,7 +33,7 @@ DOMAIN = domain_id('shutdown')
 
 
 def _command(exe: str, *args: str) -> list[str]:
-    """What the console script runs: import the entry point, exit with its result."""
+    """Build what the console script runs: import the entry point, exit with its result."""
     module, func = ENTRY_POINTS[exe].split(':')
     code = f'import sys; from {module} import {func}; sys.exit({func}())'
     return [sys.executable, '-c', code, *args]

@@ -1,4 +1,5 @@
-"""``bench`` executable: speed figures as JSON; ``--ros`` adds the 1 kHz ROS loop in real time.
+"""
+``bench`` executable: speed figures as JSON; ``--ros`` adds the 1 kHz ROS loop in real time.
 
 ``bench --ros`` runs the sim and the controller as processes (real time, 1 kHz) for
 ``--ros-duration`` s (default 20) twice: alone, and under load (a recorder process
@@ -13,17 +14,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from pathlib import Path
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from pathlib import Path
 from typing import Any, Sequence
 
-from ..tools.offline_bench import offline_figures
-from .launch import PKG, find_config
+from .launch import find_config, PKG
 from .load import CpuMeter
+from ..tools.offline_bench import offline_figures
 
 __all__ = ['main', 'ros_loop_figures']
 
@@ -150,7 +151,7 @@ def _one_run(duration_s: float, load_duty: float, params: list[str], domain: int
 def ros_loop_figures(duration_s: float = 20.0, load_duty: float = 0.3,
                      params: Sequence[str] = (), domain: int | None = None
                      ) -> dict[str, Any]:
-    """The real-time loop alone and under load (recorder + ``load_duty`` of a core)."""
+    """Measure the real-time loop alone and under load (recorder + ``load_duty`` of a core)."""
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38')) if domain is None else domain
     with tempfile.TemporaryDirectory(prefix='bench_ros_') as tmp:
         alone = _one_run(duration_s, 0.0, list(params), domain, Path(tmp))

@@ -1,4 +1,5 @@
-"""``hybrid_force_controller`` managed node: messages -> ControllerRuntime -> messages.
+"""
+``hybrid_force_controller`` managed node: messages -> ControllerRuntime -> messages.
 
 Lifecycle: *configure* loads the robot model (``robot_description`` parameter, a ``.xacro``
 path, the ``robot_description`` topic, or the bundled arm with ``use_bundled_model``) and
@@ -17,9 +18,9 @@ stamp to effort published, node clock), the tick period and the commands/s.
 """
 from __future__ import annotations
 
+from collections import Counter
 import sys
 import time
-from collections import Counter
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -28,18 +29,18 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from .diagnostics import controller_status
+from .loop_timing import DelayStats, RateMeter
+from .model_source import expand_description, missing_description_hint
+from .node_params import check_choice, CONTROLLER_NODE_SCHEMA, SENSOR_QOS, TICK_MODES
+from .parameters import check_values, declare_schema, ParameterBinder
+from .qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
+from .runner import EXECUTORS, print_help, run_node, wants_help
+from .telemetry import ControllerOutputs
 from ..core.loop_stats import LoopStats
 from ..core.params import CONTROLLER_SCHEMA, MODEL_SCHEMA, ParameterValidationError
 from ..core.robot_model import RobotModel
 from ..core.runtime import ControllerRuntime, InputError, params_for_model
-from .diagnostics import controller_status
-from .loop_timing import DelayStats, RateMeter
-from .model_source import expand_description, missing_description_hint
-from .node_params import CONTROLLER_NODE_SCHEMA, SENSOR_QOS, TICK_MODES, check_choice
-from .parameters import ParameterBinder, check_values, declare_schema
-from .qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
-from .runner import EXECUTORS, print_help, run_node, wants_help
-from .telemetry import ControllerOutputs
 
 __all__ = ['ControllerNode', 'main']
 
@@ -115,7 +116,7 @@ class ControllerNode(LifecycleNode):
         self._decimation = self._decimation_for(values['telemetry_rate_hz'])
 
     def _autostart(self, raise_errors: bool) -> None:
-        """configure + activate; a configure failure raises (start-up) or is logged."""
+        """Configure and activate; a configure failure raises (start-up) or is logged."""
         if self.trigger_configure() != _OK:
             if raise_errors:
                 raise ParameterValidationError(self.last_error)
@@ -130,7 +131,7 @@ class ControllerNode(LifecycleNode):
             self._autostart(raise_errors=False)
 
     def _load_model(self) -> RobotModel:
-        """The model from the parameter, the topic, or (when asked) the bundled arm."""
+        """Load the model from the parameter, the topic, or (when asked) the bundled arm."""
         param = self._description_param()
         values = dict(self.model_values)
         joints = list(self.get_parameter('joints').value)
@@ -147,7 +148,7 @@ class ControllerNode(LifecycleNode):
             if values['robot_description']:
                 raise
             raise ParameterValidationError(
-                f"{exc} (robot_description is empty and use_bundled_model is true, so the "
+                f'{exc} (robot_description is empty and use_bundled_model is true, so the '
                 "model is the bundled 2-link arm of the paper: give your robot's URDF)"
             ) from exc
 
@@ -187,9 +188,9 @@ class ControllerNode(LifecycleNode):
             sub = self.create_subscription(kind, topic, self._guarded(name, callback), qos)
             self._entities.append((self.destroy_subscription, sub))
         self.state_label = 'inactive'
-        self.get_logger().info(f'configured: {self.model.n} joints, base '
-                               f"'{self.model.base_link}', inputs {self._topic(TOPIC_JOINT_STATES)}"
-                               f', commands {self.outputs.pub_tau.topic_name}')
+        inputs = self._topic(TOPIC_JOINT_STATES)
+        self.get_logger().info(f"configured: {self.model.n} joints, base '{self.model.base_link}'"
+                               f', inputs {inputs}, commands {self.outputs.pub_tau.topic_name}')
         return _OK
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -1,4 +1,5 @@
-"""``demo`` executable: sim + controller over DDS, recorded to an MCAP bag, then the report.
+"""
+``demo`` executable: sim + controller over DDS, recorded to an MCAP bag, then the report.
 
 ``demo [--duration S] [--out DIR]`` starts the ``sim`` and ``controller`` nodes as separate
 processes (DDS kept on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless
@@ -15,15 +16,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from pathlib import Path
 import shutil
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Sequence
 
-from .launch import PKG, find_config
+from .launch import find_config, PKG
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -38,7 +39,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _start_nodes(params: Path, lockstep: bool, env: dict[str, str],
                  log_dir: Path) -> list[subprocess.Popen]:
-    """sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
+    """Start sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
     common = ['--ros-args', '--params-file', str(params)]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
            '-p', f'lockstep:={str(lockstep).lower()}']

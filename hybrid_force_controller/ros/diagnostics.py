@@ -18,8 +18,12 @@ def controller_status(stamp, node_name: str, out: TickOutput | None,
                       timing: Mapping[str, float], callback_errors: Mapping[str, int],
                       extra: Mapping[str, object] | None = None,
                       qualified_name: str = '') -> DiagnosticArray:
-    """One DiagnosticStatus: mode, contact, dropped-message counts, loop timing and
-    ``extra`` (lifecycle state, delay and command rate); floats as 4 significant digits."""
+    """
+    Build one DiagnosticStatus: mode, contact, counts, loop timing and ``extra``.
+
+    ``extra`` holds the lifecycle state, the delay and the command rate; floats are given
+    with 4 significant digits.
+    """
     status = DiagnosticStatus(name=f'{qualified_name or node_name}: hybrid force/motion control',
                               hardware_id=node_name)
     if out is None:

@@ -1,4 +1,5 @@
-"""Process measurements for ``bench --ros``: CPU time from ``/proc`` and a CPU load generator.
+"""
+Process measurements for ``bench --ros``: CPU time from ``/proc`` and a CPU load generator.
 
 ``python -m hybrid_force_controller.ros.load --duty 0.3`` busy-loops 30 % of one core (in
 10 ms windows: busy for ``duty`` of each, asleep for the rest) until SIGINT/SIGTERM.

@@ -1,4 +1,5 @@
-"""Timing of the control loop as the node sees it: input-to-command delay and command rate.
+"""
+Timing of the control loop as the node sees it: input-to-command delay and command rate.
 
 :class:`DelayStats` keeps a ring buffer of delays (preallocated; one store per command) and
 gives p50/p99/max over the last ``size`` commands; :class:`RateMeter` turns a running count

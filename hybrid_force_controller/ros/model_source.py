@@ -1,5 +1,5 @@
-"""Where the controller's robot model comes from: parameter, ``.xacro`` file, topic or the
-bundled arm.
+"""
+Where the controller's robot model comes from: parameter, .xacro, topic or bundled arm.
 
 ``robot_description`` (parameter) may be URDF XML, a URDF path or a ``.xacro`` path (expanded
 with the ``xacro`` package). When it is empty the node waits for the ``robot_description``
@@ -37,8 +37,8 @@ def expand_description(value: str) -> str:
 
 
 def missing_description_hint(topic: str) -> str:
-    """The log line that says what the node waits for and how to give it."""
+    """Say what the node waits for and how to give it (the log line)."""
     return (f"robot_description parameter is empty: waiting for the URDF on '{topic}' "
             '(std_msgs/String, transient local, e.g. from robot_state_publisher). Or pass '
-            "-p robot_description:=<URDF XML | .urdf | .xacro path>, or -p "
+            '-p robot_description:=<URDF XML | .urdf | .xacro path>, or -p '
             "use_bundled_model:=true for the paper's 2-link arm.")

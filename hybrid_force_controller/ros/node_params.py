@@ -1,4 +1,5 @@
-"""Parameters of the ROS nodes themselves (not of the control law): one schema per node.
+"""
+Parameters of the ROS nodes themselves (not of the control law): one schema per node.
 
 Declared through :func:`~.parameters.declare_schema` like the controller's
 :data:`~hybrid_force_controller.core.params.CONTROLLER_SCHEMA`, so they have descriptors,

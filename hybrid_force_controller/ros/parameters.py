@@ -1,4 +1,5 @@
-"""rclpy glue: declare a :class:`~.params.ParamSpec` schema and validate every change.
+"""
+rclpy glue: declare a :class:`~.params.ParamSpec` schema and validate every change.
 
 ``declare_schema`` declares each spec with a :class:`ParameterDescriptor` (description,
 range, read-only) and normalises the start-up values; ``ParameterBinder`` registers the
@@ -20,7 +21,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.params import ParameterValidationError, ParamSpec, check_stability
+from ..core.params import check_stability, ParameterValidationError, ParamSpec
 
 __all__ = ['ParameterBinder', 'check_values', 'declare_schema', 'descriptor_for',
            'normalise_value']
@@ -55,7 +56,8 @@ def _is_number(x: Any) -> bool:
 
 
 def normalise_value(spec: ParamSpec, value: Any, unit: Iterable[str] = ()) -> Any:
-    """Integers -> floats for double(_array) specs, arrays -> lists, unit vectors normalised.
+    """
+    Integers -> floats for double(_array) specs, arrays -> lists, unit vectors normalised.
 
     Values that do not fit are returned unchanged, for validation to reject with a reason.
     """
@@ -75,7 +77,7 @@ def normalise_value(spec: ParamSpec, value: Any, unit: Iterable[str] = ()) -> An
 
 
 def _refuse_bools(spec: ParamSpec, value: Any) -> None:
-    """A double array holding booleans is an error (numpy would take them as 0 and 1)."""
+    """Refuse a double array holding booleans (numpy would take them as 0 and 1)."""
     if spec.kind == 'double_array' and isinstance(value, (list, tuple)) and any(
             isinstance(x, bool) for x in value):
         raise ParameterValidationError(f'{spec.name} must be an array of numbers, got '
@@ -90,8 +92,11 @@ def _unset_means_default(spec: ParamSpec, value: Any) -> Any:
 
 
 def check_values(specs: Sequence[ParamSpec], values: dict[str, Any]) -> dict[str, Any]:
-    """Checks that need no robot model: types, finiteness, ranges, eq. (29); returns
-    ``values``. Raises :class:`~.params.ParameterValidationError` with the reason."""
+    """
+    Check what needs no robot model: types, finiteness, ranges, eq. (29).
+
+    Returns ``values``; raises :class:`~.params.ParameterValidationError` with the reason.
+    """
     for spec in specs:
         value = values.get(spec.name, spec.default)
         _refuse_bools(spec, value)
@@ -114,7 +119,7 @@ def check_values(specs: Sequence[ParamSpec], values: dict[str, Any]) -> dict[str
 
 
 def _parameter(spec: ParamSpec, value: Any) -> Parameter:
-    """A Parameter with the schema's type when ``value`` fits it (an empty list stays typed)."""
+    """Make a Parameter of the schema's type when ``value`` fits it ([] stays typed)."""
     try:
         return Parameter(spec.name, _ROS_TYPE[spec.kind], value)
     except (TypeError, ValueError):
@@ -123,7 +128,8 @@ def _parameter(spec: ParamSpec, value: Any) -> Parameter:
 
 def declare_schema(node: Node, schema: Sequence[ParamSpec],
                    unit: Iterable[str] = ()) -> dict[str, Any]:
-    """Declare every spec (``--params-file``/``-p`` overrides apply); return ``{name: value}``.
+    """
+    Declare every spec (``--params-file``/``-p`` overrides apply); return ``{name: value}``.
 
     Declaring runs no pre-set callback, so the value is normalised and set again (typed:
     ``[]`` would stay a byte array) before read-only is applied.
@@ -147,7 +153,8 @@ def declare_schema(node: Node, schema: Sequence[ParamSpec],
 
 
 class ParameterBinder(Generic[T]):
-    """Validate every set of the schema's parameters; install the result after it is set.
+    """
+    Validate every set of the schema's parameters; install the result after it is set.
 
     Parameters
     ----------
@@ -162,6 +169,7 @@ class ParameterBinder(Generic[T]):
         Installs the validated object once the values are stored (post-set).
     unit : iterable of str
         double_array specs normalised to unit length.
+
     """
 
     def __init__(self, node: Node, schema: Sequence[ParamSpec], validate: Callable[[dict], T],

@@ -1,4 +1,5 @@
-"""The QoS of every topic of the package, in one place (documented in README "Topics and QoS").
+"""
+The QoS of every topic of the package, in one place (documented in README "Topics and QoS").
 
 * 1 kHz sensor inputs (``joint_states``, the F/T ``wrench``): KEEP_LAST 1, so a late
   subscriber takes the newest sample, not a backlog; BEST_EFFORT by default, which matches

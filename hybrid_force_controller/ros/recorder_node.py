@@ -1,4 +1,5 @@
-"""``BagRecorder``: a minimal rosbag2 recorder node (raw CDR in, MCAP out).
+"""
+``BagRecorder``: a minimal rosbag2 recorder node (raw CDR in, MCAP out).
 
 Subscribes without deserializing (``raw=True``) and stamps every message with the node
 clock at reception (sim time when ``use_sim_time`` is set), like ``ros2 bag record``.
@@ -9,23 +10,23 @@ SIGINT/SIGTERM, then closes the bag.
 """
 from __future__ import annotations
 
-import importlib
-import sys
 from functools import partial
+import importlib
 from pathlib import Path
+import sys
 from typing import Sequence
 
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from ..tools.bag_io import RECORD_TOPICS, BagWriter
 from .runner import run_node, wants_help
+from ..tools.bag_io import BagWriter, RECORD_TOPICS
 
 __all__ = ['BagRecorder', 'main', 'message_class', 'relative']
 
 
 def message_class(msgtype: str) -> type:
-    """The rclpy message class of ``'pkg/msg/Type'``."""
+    """Return the rclpy message class of ``'pkg/msg/Type'``."""
     package, kind, name = msgtype.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
@@ -36,21 +37,24 @@ def relative(topic: str) -> str:
 
 
 class BagRecorder(Node):
-    """Record ``topics`` into a new MCAP bag at ``bag_path``.
+    """
+    Record ``topics`` into a new MCAP bag at ``bag_path``.
 
     Parameters
     ----------
     bag_path : str or pathlib.Path
         Bag directory to create (must not exist).
     topics : sequence of (str, str)
-        ``(topic, msgtype)`` pairs; default :data:`~hybrid_force_controller.tools.bag_io.RECORD_TOPICS`
-        (made relative, see :func:`relative`).
+        ``(topic, msgtype)`` pairs; default
+        :data:`~hybrid_force_controller.tools.bag_io.RECORD_TOPICS` (made relative, see
+        :func:`relative`).
     node_name : str
         Node name.
     depth : int
         Subscription queue depth (reliable, volatile): 1 s of the 1 kHz topics.
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context=``, ``parameter_overrides=`` ...).
+
     """
 
     def __init__(self, bag_path: str | Path,
@@ -69,12 +73,14 @@ class BagRecorder(Node):
         self.get_logger().info(f'recording {len(topics)} topics to {self.writer.path}')
 
     def record(self, topic: str, raw_cdr: bytes) -> bool:
-        """Write one received message; never raises (a callback exception kills the node).
+        """
+        Write one received message; never raises (a callback exception kills the node).
 
         Returns
         -------
         bool
             Whether the message was written.
+
         """
         try:
             self.writer.write(topic, self.get_clock().now().nanoseconds, raw_cdr)

@@ -1,4 +1,5 @@
-"""Running a node process: ``--help``, the executor, and a clean exit on SIGINT/SIGTERM.
+"""
+Running a node process: ``--help``, the executor, and a clean exit on SIGINT/SIGTERM.
 
 :func:`run_node` builds the node, spins it with the executor its ``executor`` parameter names
 (``events``: :func:`rclpy.experimental.EventsExecutor`, ``single_threaded``) and returns
@@ -31,7 +32,7 @@ README = ('README.md of hybrid_force_controller (source tree, or share/hybrid_fo
 
 
 def make_executor(kind: str, context: Any = None) -> Executor:
-    """An executor of ``kind`` (one of :data:`EXECUTORS`)."""
+    """Create an executor of ``kind`` (one of :data:`EXECUTORS`)."""
     if kind == 'events':
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
@@ -79,8 +80,12 @@ def print_help(executable: str, summary: str, parameters: Sequence[tuple[str, st
 
 
 def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None = None) -> int:
-    """rclpy.init, build the node, spin until SIGINT/SIGTERM; 0 then, 1 (with the reason on
-    stderr) if the node cannot be configured (a ValueError subclass or a ParameterException)."""
+    """
+    Init rclpy, build the node and spin it until SIGINT/SIGTERM.
+
+    Returns 0 then, 1 (with the reason on stderr) if the node cannot be configured (a
+    ValueError subclass or a ParameterException).
+    """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = make_node()

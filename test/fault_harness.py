@@ -180,7 +180,10 @@ class Rig:
                                ['-p', 'lockstep:=true', *sim_args, *remap])
         self.controller = NodeProcess('hybrid_force_controller.ros.controller_node',
                                   logs / 'controller.log', domain_id,
-                                  ['-p', 'use_sim_time:=true', *controller_args])
+                                  ['-p', 'use_sim_time:=true', *controller_args,
+                                   # every injected message is counted: reliable inputs
+                                   # (the best-effort default may lose one under load)
+                                   '-p', 'sensor_qos:=reliable'])
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.proxy = Proxy(self.context, n_W, limits)

@@ -271,8 +271,14 @@ class ControllerNode(LifecycleNode):
         self.runtime.on_reference((msg.point.x, msg.point.y, msg.point.z))
 
     def _on_watchdog(self) -> None:
-        """Tick anyway after 2 periods without a tick (tick_mode joint_state)."""
-        if self._now() - self._t_tick >= 2.0 * self._period:
+        """
+        Tick anyway after 2 periods without a tick, or when the clock jumped back.
+
+        tick_mode joint_state: a stale input or a restarted clock (whose joint states the
+        runtime refuses as older until a tick restarts it) still reaches the runtime.
+        """
+        since = self._now() - self._t_tick
+        if since >= 2.0 * self._period or since < -self._period:
             self._tick()
 
     def _tick(self, t_input: float = 0.0) -> None:

@@ -12,6 +12,6 @@ import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any t
 
 
 def pytest_configure(config):
-    """The markers of the ament linter tests (test_flake8.py, test_pep257.py)."""
+    """Register the markers of the ament linter tests (test_flake8.py, test_pep257.py)."""
     for marker in ('flake8', 'pep257', 'linter'):
         config.addinivalue_line('markers', f'{marker}: ament {marker} check')

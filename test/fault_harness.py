@@ -182,8 +182,8 @@ class Rig:
                                   logs / 'controller.log', domain_id,
                                   ['-p', 'use_sim_time:=true', *controller_args,
                                    # every injected message is counted: reliable inputs
-                                   # (the best-effort default may lose one under load)
-                                   '-p', 'sensor_qos:=reliable'])
+                                   # that keep a burst (the defaults keep only the newest)
+                                   '-p', 'sensor_qos:=reliable', '-p', 'sensor_depth:=10'])
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.proxy = Proxy(self.context, n_W, limits)

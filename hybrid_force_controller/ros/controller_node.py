@@ -176,7 +176,7 @@ class ControllerNode(LifecycleNode):
         self._ran = False  # a fresh runtime starts from the arm by itself
         self.outputs = ControllerOutputs(self, self.model.base_link, self.model.n,
                                          self.model.theta_names)
-        qos_in = sensor_in_qos(self.node_values['sensor_qos'])
+        qos_in = sensor_in_qos(self.node_values['sensor_qos'], self.node_values['sensor_depth'])
         for name, topic, kind, callback, qos, raw in (  # raw: read from the CDR bytes
                 ('joint_states', TOPIC_JOINT_STATES, JointState, self._on_joint_state, qos_in,
                  True),

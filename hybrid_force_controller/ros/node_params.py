@@ -38,6 +38,9 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
     _S('sensor_qos', 'string', 'best_effort',
        "Reliability of the joint_states and wrench subscriptions: 'best_effort' (matches "
        "reliable and best-effort publishers) or 'reliable'.", read_only=True),
+    _S('sensor_depth', 'integer', 1,
+       'Queue depth of the joint_states and wrench subscriptions (1: only the newest sample '
+       'is kept; more keeps every sample of a burst).', 1, 1000, read_only=True),
 )
 
 

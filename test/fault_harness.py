@@ -152,6 +152,8 @@ class Proxy(Node):
             self.cv.notify_all()
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
+        if not msg.status or msg.status[0].hardware_id != 'hybrid_force_controller':
+            return  # the sim reports on /diagnostics too
         t = stamp_s(msg.header.stamp)
         with self.cv:
             if t <= self.now + 0.5:  # else stamped before a restart of the sim's clock
@@ -178,7 +180,10 @@ class Rig:
                                ['-p', 'lockstep:=true', *sim_args, *remap])
         self.controller = NodeProcess('hybrid_force_controller.ros.controller_node',
                                   logs / 'controller.log', domain_id,
-                                  ['-p', 'use_sim_time:=true', *controller_args])
+                                  ['-p', 'use_sim_time:=true', *controller_args,
+                                   # every injected message is counted: reliable inputs
+                                   # that keep a burst (the defaults keep only the newest)
+                                   '-p', 'sensor_qos:=reliable', '-p', 'sensor_depth:=10'])
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.proxy = Proxy(self.context, n_W, limits)

@@ -1,4 +1,5 @@
-"""`colcon build` lays the package out the way `ros2 run` finds it.
+"""
+`colcon build` lays the package out the way `ros2 run` finds it.
 
 ros2run resolves ``ros2 run PKG EXE`` through the ament index: the package marker in
 ``share/ament_index/resource_index/packages`` gives the prefix, and the executable is
@@ -7,13 +8,12 @@ executables exactly that way with ament_index_python, and start them.
 """
 import json
 import os
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
-
-from ros_helpers import NodeProcess, Spun, domain_id, wait_for
+from ros_helpers import domain_id, NodeProcess, Spun, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 PKG = 'hybrid_force_controller'
@@ -23,7 +23,7 @@ DOMAIN_ID = str(domain_id('colcon_build'))
 
 @pytest.fixture(scope='module')
 def install(tmp_path_factory) -> Path:
-    """colcon build of this repository into a fresh directory; returns the install base."""
+    """Run colcon build of this repository into a fresh directory; return the install base."""
     base = tmp_path_factory.mktemp('colcon')
     cmd = [sys.executable, '-m', 'colcon', '--log-base', str(base / 'log'), 'build',
            '--base-paths', str(REPO), '--build-base', str(base / 'build'),
@@ -34,7 +34,7 @@ def install(tmp_path_factory) -> Path:
 
 
 def _env(install: Path) -> dict[str, str]:
-    """What sourcing install/setup.sh would set for this package (isolated layout)."""
+    """Set what sourcing install/setup.sh would set for this package (isolated layout)."""
     prefix = install / PKG
     site = next((prefix / 'lib').glob('python3*/site-packages'))
     env = dict(os.environ)
@@ -83,7 +83,7 @@ def test_paper_runs_from_install(install, tmp_path):
 
 
 def test_nodes_start_from_install(install, tmp_path):
-    """controller and sim started through their installed paths join the ROS graph."""
+    """Controller and sim started through their installed paths join the ROS graph."""
     domain = int(DOMAIN_ID)
     procs = []
     for exe in ('sim', 'controller'):

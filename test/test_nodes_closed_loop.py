@@ -1,20 +1,20 @@
-"""Closed loop over real DDS: ``sim`` (lockstep, owns /clock) + controller (use_sim_time).
+"""
+Closed loop over real DDS: ``sim`` (lockstep, owns /clock) + controller (use_sim_time).
 
 Both nodes run as subprocesses with ``--params-file config/params.yaml``; this process
 listens to ``/sim/contact_wrench`` (true contact force), ``/hybrid_force_controller/x``,
 ``/hybrid_force_controller/x_desired`` and ``/clock`` and changes ``f_d`` through the
 parameter service. Lockstep makes the result independent of the machine's load.
 """
+from geometry_msgs.msg import PointStamped, WrenchStamped
 import numpy as np
 import pytest
-from geometry_msgs.msg import PointStamped, WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
+from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 from rosgraph_msgs.msg import Clock
-
-from ros_helpers import NodeProcess, Spun, domain_id, wait_for, wait_future
 
 WALL_TIMEOUT = 300.0
 N_W = np.array([0.0, -1.0, 0.0])  # config/params.yaml
@@ -68,9 +68,11 @@ class _Listener(Node):
 def loop(tmp_path_factory):
     logs = tmp_path_factory.mktemp('closed_loop')
     domain = domain_id('nodes_closed_loop')
-    procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain, ['-p', 'lockstep:=true']),
+    full = ['-p', 'telemetry_rate_hz:=1000.0']  # every step: the test counts samples
+    procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain,
+                         ['-p', 'lockstep:=true', *full]),
              NodeProcess('hybrid_force_controller.ros.controller_node', logs / 'controller.log',
-                         domain, ['-p', 'use_sim_time:=true'])]
+                         domain, ['-p', 'use_sim_time:=true', *full])]
     spun = Spun(domain)
     listener = spun.add(_Listener(spun.context))
     try:

@@ -1,23 +1,22 @@
-"""Parameter handling of the controller node through the parameter services (real DDS).
+"""
+Parameter handling of the controller node through the parameter services (real DDS).
 
 The node runs in-process with its own context and domain; the tests talk to it with
 :class:`rclpy.parameter_client.AsyncParameterClient`, which is what ``ros2 param set`` uses.
 """
 import math
-import threading
 from pathlib import Path
+import threading
 
+from hybrid_force_controller.ros.controller_node import ControllerNode
 import numpy as np
 import pytest
-
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
-
-from hybrid_force_controller.ros.controller_node import ControllerNode
 from ros_helpers import domain_id
 from sim_node.sim_node import SimNode
 
@@ -27,7 +26,7 @@ PARAMS_FILE = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
 
 
 def _wait(future):
-    """Result of a future completed by the background executor (fails after TIMEOUT)."""
+    """Return the result of a future completed by the background executor (or fail)."""
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     assert done.wait(TIMEOUT), 'no answer from the parameter service'
@@ -57,7 +56,8 @@ class _Running:
 
 @pytest.fixture(scope='module')
 def controller():
-    running = _Running(lambda ctx: [ControllerNode(context=ctx),
+    bundled = [Parameter('use_bundled_model', value=True)]
+    running = _Running(lambda ctx: [ControllerNode(context=ctx, parameter_overrides=bundled),
                                     Node('param_tester', context=ctx)])
     node, tester = running.nodes
     client = AsyncParameterClient(tester, 'hybrid_force_controller')
@@ -159,5 +159,66 @@ def test_params_file_configures_both_nodes():
         assert sim.sim.surface.k == 1700.0
         np.testing.assert_allclose(sim.sim.q, [0.657, 0.913])
         assert sim.get_parameter('stiffness').value == 1700.0
+    finally:
+        running.close()
+
+
+def test_bool_array_is_refused_with_a_reason(controller):
+    node, client = controller
+    params_before = node.runtime.params
+    (result,) = _set(client, n=[True, False, False])
+    assert not result.successful and 'booleans' in result.reason, result.reason
+    assert node.runtime.params is params_before
+
+
+def test_bool_array_at_start_up_is_refused():
+    running = _Running(lambda ctx: [], ['--ros-args', '-p', 'n:=[true, false, false]'])
+    try:
+        with pytest.raises(ValueError, match='n must be an array of numbers, got booleans'):
+            ControllerNode(context=running.context, parameter_overrides=[
+                Parameter('use_bundled_model', value=True)])
+    finally:
+        running.close()
+
+
+def test_empty_arrays_at_start_up_mean_default(tmp_path):
+    """``-p NAME:=[]`` and ``NAME: []`` in a params file (what ros2 param dump writes)."""
+    params = tmp_path / 'empty.yaml'
+    params.write_text('hybrid_force_controller:\n  ros__parameters:\n'
+                      '    use_bundled_model: true\n    theta_min: []\n    theta_hat0: []\n')
+    args = ['--ros-args', '--params-file', str(params), '-p', 'effort_limits:=[]']
+    running = _Running(lambda ctx: [ControllerNode(context=ctx)], args)
+    try:
+        (node,) = running.nodes
+        np.testing.assert_array_equal(node.runtime.params.effort_limits, [100.0, 100.0])
+        np.testing.assert_array_equal(node.runtime.params.theta_min, [0.0, 0.0])
+        assert list(node.get_parameter('effort_limits').value) == []
+    finally:
+        running.close()
+
+
+def test_dump_and_reload(controller, tmp_path):
+    """Dump every parameter as ``ros2 param dump`` does; the dump starts an identical node."""
+    import yaml
+    node, client = controller
+    names = _wait(client.list_parameters()).result.names
+    values = _wait(client.get_parameters(names)).values
+    dumped = {n: parameter_value_to_python(v) for n, v in zip(names, values)}
+    dumped = {n: (list(v) if isinstance(v, (list, tuple)) or hasattr(v, 'tolist') else v)
+              for n, v in dumped.items()}
+    dumped = {n: ([float(x) for x in v] if n in ('gamma', 'n', 'gravity') else v)
+              for n, v in dumped.items()}
+    assert dumped['effort_limits'] == [] and dumped['theta_min'] == []
+    path = tmp_path / 'dump.yaml'
+    path.write_text(yaml.safe_dump({'/hybrid_force_controller': {'ros__parameters': dumped}}))
+    running = _Running(lambda ctx: [ControllerNode(context=ctx)],
+                       ['--ros-args', '--params-file', str(path)])
+    try:
+        (reloaded,) = running.nodes
+        a, b = node.runtime.params, reloaded.runtime.params
+        for field in ('f_d', 'lambda1', 'lambda2', 'k_d', 'joints'):
+            assert getattr(a, field) == getattr(b, field), field
+        for field in ('effort_limits', 'theta_min', 'theta_max', 'n', 'Gamma'):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     finally:
         running.close()

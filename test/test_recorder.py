@@ -4,17 +4,16 @@ from __future__ import annotations
 import time  # noqa: E402
 from typing import Callable  # noqa: E402
 
+from geometry_msgs.msg import PointStamped, WrenchStamped  # noqa: E402
+from hybrid_force_controller.ros.recorder_node import BagRecorder, message_class  # noqa: E402
+from hybrid_force_controller.tools.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,
+                                                  TOPIC_WRENCH, TOPIC_X, TYPESTORE)
 import pytest  # noqa: E402
 import rclpy  # noqa: E402
-from geometry_msgs.msg import PointStamped, WrenchStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rosbags.highlevel import AnyReader  # noqa: E402
-
-from hybrid_force_controller.tools.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,  # noqa: E402
-                                            TOPIC_WRENCH, TOPIC_X, TYPESTORE)
-from hybrid_force_controller.ros.recorder_node import BagRecorder, message_class  # noqa: E402
 from ros_helpers import domain_id  # noqa: E402
+from rosbags.highlevel import AnyReader  # noqa: E402
 
 DOMAIN_ID = domain_id('recorder')
 TIMEOUT_S = 20.0

@@ -1,40 +1,45 @@
-"""``demo`` executable: sim + controller over DDS, recorded to an MCAP bag, then the report.
+"""
+``demo`` executable: sim + controller over DDS, recorded to an MCAP bag, then the report.
 
 ``demo [--duration S] [--out DIR]`` starts the ``sim`` and ``controller`` nodes as separate
 processes (DDS kept on this machine: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` unless
 set), records every relevant topic with a rosbag2 recorder into ``DIR/bag`` (MCAP), and
 runs the report on the bag (``DIR/report``: Figs. 3-5 and metrics.json).
 
-By default the sim runs in lockstep and publishes ``/clock`` (the controller uses sim
-time), so the run is the same on a loaded machine; ``--real-time`` runs both against the
-wall clock at 1 kHz instead.
+By default both nodes run in real time against the wall clock at 1 kHz, as on a robot;
+``--lockstep`` makes the sim own the time (it publishes ``/clock``, the controller uses sim
+time and the recorder sim time), so the run is the same on a loaded machine. The report's
+``metrics.json`` records ``"mode": "real_time"`` or ``"lockstep"``.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+from pathlib import Path
 import shutil
+import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Sequence
 
-from .launch import PKG, find_config
+from .launch import find_config, PKG
 
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
     ap.add_argument('--duration', type=float, default=20.0, help='recorded time, s (>= 6)')
     ap.add_argument('--out', type=Path, default=Path('out/demo'), help='output directory')
-    ap.add_argument('--real-time', action='store_true', help='wall clock instead of lockstep')
+    ap.add_argument('--lockstep', action='store_true',
+                    help='deterministic: the sim owns the time (/clock), one step per command')
     ap.add_argument('--timeout', type=float, default=900.0, help='wall-time limit, s')
     return ap
 
 
 def _start_nodes(params: Path, lockstep: bool, env: dict[str, str],
                  log_dir: Path) -> list[subprocess.Popen]:
-    """sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
+    """Start sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
     common = ['--ros-args', '--params-file', str(params)]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
            '-p', f'lockstep:={str(lockstep).lower()}']
@@ -51,13 +56,19 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
     """Spin a recorder until its clock has advanced ``duration`` s; show progress."""
     import rclpy
     from rclpy.parameter import Parameter
+    from rclpy.task import Future
     from .recorder_node import BagRecorder
-    rclpy.init()
+    from .runner import make_executor
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt
     rec = BagRecorder(bag, parameter_overrides=[Parameter('use_sim_time', value=lockstep)])
+    executor = make_executor('events')
+    executor.add_node(rec)
+    never = Future()
     try:
         t_wall0, t_start, shown = time.monotonic(), None, -1
         while True:
-            rclpy.spin_once(rec, timeout_sec=0.05)
+            executor.spin_until_future_complete(never, timeout_sec=0.05)
             now = rec.get_clock().now().nanoseconds * 1e-9
             if now > 0.0 and t_start is None:
                 t_start = now
@@ -73,8 +84,16 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
                 raise TimeoutError(f'recording did not reach {duration} s in {timeout} s')
         print()
     finally:
+        executor.shutdown(timeout_sec=5.0)
         rec.destroy_node()
         rclpy.shutdown()
+
+
+def _add_mode(metrics_path: Path, mode: str) -> None:
+    """Record how the run was timed in the report's metrics.json."""
+    metrics = json.loads(metrics_path.read_text())
+    metrics['mode'] = mode
+    metrics_path.write_text(json.dumps(metrics, indent=2) + '\n')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -88,23 +107,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     bag, report_dir = args.out / 'bag', args.out / 'report'
     shutil.rmtree(bag, ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    print(f'demo: {args.duration:.0f} s, {"real time" if args.real_time else "lockstep"}, '
+    mode = 'lockstep' if args.lockstep else 'real_time'
+    print(f'demo: {args.duration:.0f} s, {mode.replace("_", " ")}, '
           f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
-    procs = _start_nodes(find_config(), not args.real_time, dict(os.environ), args.out)
+    procs = _start_nodes(find_config(), args.lockstep, dict(os.environ), args.out)
     try:
-        _record(bag, args.duration, not args.real_time, procs, args.timeout)
+        _record(bag, args.duration, args.lockstep, procs, args.timeout)
     except (RuntimeError, TimeoutError) as exc:
         print(f'\nerror: {exc}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f'\ndemo: interrupted; the partial bag is {bag}', file=sys.stderr)
+        return 0
     finally:
         for p in procs:
-            p.terminate()
+            p.send_signal(signal.SIGINT)
         for p in procs:
-            p.wait(timeout=30)
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
     from ..tools.report import main as report_main
     print('report:')
     code = report_main([str(bag), '--out', str(report_dir)])
     if code == 0:
+        _add_mode(report_dir / 'metrics.json', mode)
         print(f'bag:     {bag}\nfigures: {report_dir}/fig3_position.png, fig4_force.png, '
               f'fig5_parameters.png\nmetrics: {report_dir}/metrics.json')
     return code

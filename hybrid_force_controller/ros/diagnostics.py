@@ -1,6 +1,7 @@
 """``/diagnostics`` status of the controller (diagnostic_msgs, the ROS convention)."""
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -17,25 +18,47 @@ _LEVEL = {Mode.RUNNING: DiagnosticStatus.OK, Mode.WAITING: DiagnosticStatus.WARN
 INPUT_FAULTS = ('joint_state_dropped', 'wrench_dropped', 'wrench_implausible')
 
 
+def _warnings(runtime: ControllerRuntime, new_faults: int,
+              extra: Mapping[str, object]) -> list[str]:
+    """Reasons to raise an OK status to WARN: dropped inputs, a delay near the margin."""
+    out = []
+    if new_faults:
+        out.append(f'inputs dropped: {runtime.last_fault}')
+    margin_ms = float(extra.get('delay_margin_ms', math.inf))
+    delay_ms = float(extra.get('delay_p99_ms', math.nan))
+    if math.isfinite(delay_ms) and delay_ms + 1.0 > 0.5 * margin_ms:  # +1 ms: plant side
+        out.append(f'loop delay p99 {delay_ms:.1f} ms leaves less than half of the gains\' '
+                   f'delay margin {margin_ms:.1f} ms')
+    out.extend(str(w) for w in extra.get('warnings', ()))
+    return out
+
+
 def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                       new_faults: int, timing: Mapping[str, float],
-                      callback_errors: Mapping[str, int]) -> DiagnosticArray:
-    """One DiagnosticStatus: mode, contact, counters, the last input fault, loop timing.
+                      callback_errors: Mapping[str, int],
+                      extra: Mapping[str, object] | None = None,
+                      qualified_name: str = '') -> DiagnosticArray:
+    """
+    Build one DiagnosticStatus: mode, contact, counters, the last input fault, loop timing.
 
     The level follows the mode (OK running; WARN waiting or approaching; ERROR safe or
     surface not found) and is at least WARN when ``new_faults`` inputs were dropped since
-    the last status.
+    the last status or the measured delay (``extra['delay_p99_ms']``) comes near the
+    delay margin (``extra['delay_margin_ms']``). ``extra`` also holds the lifecycle state
+    and the command rate; floats are given with 4 significant digits.
     """
-    status = DiagnosticStatus(name=f'{node_name}: hybrid force/motion control',
+    extra = extra or {}
+    status = DiagnosticStatus(name=f'{qualified_name or node_name}: hybrid force/motion control',
                               hardware_id=node_name)
     if runtime is None or runtime.counters['ticks'] == 0:
-        status.level, status.message = DiagnosticStatus.WARN, 'no tick yet'
-        values: dict[str, object] = {}
+        state = extra.get('lifecycle_state', '')
+        status.level, status.message = DiagnosticStatus.WARN, f'no tick yet {state}'.strip()
+        values: dict[str, object] = {'mode': 'waiting' if state in ('', 'active') else state}
     else:
-        level = _LEVEL[runtime.mode]
-        message = runtime.status
-        if new_faults and level == DiagnosticStatus.OK:
-            level, message = DiagnosticStatus.WARN, f'{message}; inputs dropped: {runtime.last_fault}'
+        level, message = _LEVEL[runtime.mode], runtime.status
+        warnings = _warnings(runtime, new_faults, extra)
+        if warnings and level == DiagnosticStatus.OK:
+            level, message = DiagnosticStatus.WARN, '; '.join([message, *warnings])
         status.level, status.message = level, message
         values = {'mode': runtime.mode.value, 'in_contact': runtime.in_contact,
                   **runtime.counters, 'last_input_fault': runtime.last_fault,
@@ -44,5 +67,7 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
     values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
                    for k, v in timing.items()})
     values.update({f'callback_errors_{k}': v for k, v in callback_errors.items()})
+    values.update({k: (f'{v:.4g}' if isinstance(v, float) else v)
+                   for k, v in extra.items() if k != 'warnings'})
     status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])

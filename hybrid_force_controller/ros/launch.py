@@ -1,8 +1,8 @@
 """Finding the package's files and starting its nodes as processes (shared by demo and bench)."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
+import sys
 
 __all__ = ['PKG', 'find_config']
 

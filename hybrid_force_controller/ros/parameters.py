@@ -1,28 +1,30 @@
-"""rclpy glue: declare a :class:`~.params.ParamSpec` schema and validate every change.
+"""
+rclpy glue: declare a :class:`~.params.ParamSpec` schema and validate every change.
 
 ``declare_schema`` declares each spec with a :class:`ParameterDescriptor` (description,
 range, read-only) and normalises the start-up values; ``ParameterBinder`` registers the
-pre-set (integer -> double, unit vectors), on-set (merge + validate, reject with the
-reason) and post-set (install) callbacks, so a multi-value set applies atomically.
+pre-set (integer -> double, unit vectors, empty array -> typed empty array), on-set
+(merge + validate, reject with the reason) and post-set (install) callbacks, so a
+multi-value set applies atomically. An empty array means "default" everywhere: at start-up
+``-p effort_limits:=[]`` or ``theta_min: []`` in a params file (what ``ros2 param dump``
+writes) arrive untyped and are read as the default; a set of ``[]`` keeps the parameter
+declared. Boolean arrays are refused for double arrays (numpy would read them as 0/1).
 """
 from __future__ import annotations
 
 import array
 import math
-import sys
 from typing import Any, Callable, Generic, Iterable, Sequence, TypeVar
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
-import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.params import ParameterValidationError, ParamSpec
+from ..core.params import check_stability, ParameterValidationError, ParamSpec
 
-__all__ = ['ParameterBinder', 'declare_schema', 'descriptor_for', 'normalise_value']
+__all__ = ['ParameterBinder', 'check_values', 'declare_schema', 'descriptor_for',
+           'normalise_value']
 
 T = TypeVar('T')
 _Type = Parameter.Type
@@ -54,7 +56,8 @@ def _is_number(x: Any) -> bool:
 
 
 def normalise_value(spec: ParamSpec, value: Any, unit: Iterable[str] = ()) -> Any:
-    """Integers -> floats for double(_array) specs, arrays -> lists, unit vectors normalised.
+    """
+    Integers -> floats for double(_array) specs, arrays -> lists, unit vectors normalised.
 
     Values that do not fit are returned unchanged, for validation to reject with a reason.
     """
@@ -73,8 +76,50 @@ def normalise_value(spec: ParamSpec, value: Any, unit: Iterable[str] = ()) -> An
     return list(value) if spec.kind == 'string_array' else value
 
 
+def _refuse_bools(spec: ParamSpec, value: Any) -> None:
+    """Refuse a double array holding booleans (numpy would take them as 0 and 1)."""
+    if spec.kind == 'double_array' and isinstance(value, (list, tuple)) and any(
+            isinstance(x, bool) for x in value):
+        raise ParameterValidationError(f'{spec.name} must be an array of numbers, got '
+                                       f'booleans {list(value)}')
+
+
+def _unset_means_default(spec: ParamSpec, value: Any) -> Any:
+    """``[]`` from a params file or ``-p NAME:=[]`` arrives untyped (None): the default."""
+    if value is None and spec.kind in ('double_array', 'string_array'):
+        return list(spec.default)
+    return value
+
+
+def check_values(specs: Sequence[ParamSpec], values: dict[str, Any]) -> dict[str, Any]:
+    """
+    Check what needs no robot model: types, finiteness, ranges, eq. (29).
+
+    Returns ``values``; raises :class:`~.params.ParameterValidationError` with the reason.
+    """
+    for spec in specs:
+        value = values.get(spec.name, spec.default)
+        _refuse_bools(spec, value)
+        if spec.kind == 'double':
+            if not _is_number(value) or not math.isfinite(value):
+                raise ParameterValidationError(f'{spec.name} must be a finite number, '
+                                               f'got {value!r}')
+            if (spec.positive and not value > 0.0) or (
+                    spec.lo is not None and not spec.lo <= value <= spec.hi):
+                raise ParameterValidationError(f'{spec.name} = {value:g} is outside '
+                                               f'[{spec.lo:g}, {spec.hi:g}]'
+                                               + (' or not > 0' if spec.positive else ''))
+        elif spec.kind == 'double_array' and not all(
+                _is_number(x) and math.isfinite(x) for x in value):
+            raise ParameterValidationError(f'{spec.name} must be an array of finite numbers, '
+                                           f'got {value!r}')
+    if {'lambda1', 'lambda2', 'k_max'} <= set(values):
+        check_stability(values['lambda1'], values['lambda2'], values['k_max'])
+    return values
+
+
 def _parameter(spec: ParamSpec, value: Any) -> Parameter:
-    """A Parameter with the schema's type when ``value`` fits it (an empty list stays typed)."""
+    """Make a Parameter of the schema's type when ``value`` fits it ([] stays typed)."""
     try:
         return Parameter(spec.name, _ROS_TYPE[spec.kind], value)
     except (TypeError, ValueError):
@@ -83,7 +128,8 @@ def _parameter(spec: ParamSpec, value: Any) -> Parameter:
 
 def declare_schema(node: Node, schema: Sequence[ParamSpec],
                    unit: Iterable[str] = ()) -> dict[str, Any]:
-    """Declare every spec (``--params-file``/``-p`` overrides apply); return ``{name: value}``.
+    """
+    Declare every spec (``--params-file``/``-p`` overrides apply); return ``{name: value}``.
 
     Declaring runs no pre-set callback, so the value is normalised and set again (typed:
     ``[]`` would stay a byte array) before read-only is applied.
@@ -95,7 +141,8 @@ def declare_schema(node: Node, schema: Sequence[ParamSpec],
         writable = descriptor_for(spec)
         writable.read_only = False
         raw = node.declare_parameter(spec.name, spec.default, writable).value
-        value = normalise_value(spec, raw, unit)
+        value = normalise_value(spec, _unset_means_default(spec, raw), unit)
+        _refuse_bools(spec, value)
         result = node.set_parameters([_parameter(spec, value)])[0]
         if not result.successful:
             raise ParameterValidationError(f'{spec.name}: {result.reason}')
@@ -106,7 +153,8 @@ def declare_schema(node: Node, schema: Sequence[ParamSpec],
 
 
 class ParameterBinder(Generic[T]):
-    """Validate every set of the schema's parameters; install the result after it is set.
+    """
+    Validate every set of the schema's parameters; install the result after it is set.
 
     Parameters
     ----------
@@ -121,6 +169,7 @@ class ParameterBinder(Generic[T]):
         Installs the validated object once the values are stored (post-set).
     unit : iterable of str
         double_array specs normalised to unit length.
+
     """
 
     def __init__(self, node: Node, schema: Sequence[ParamSpec], validate: Callable[[dict], T],
@@ -139,6 +188,8 @@ class ParameterBinder(Generic[T]):
         for p in parameters:
             spec = self.specs.get(p.name)
             try:
+                if spec is not None and p.type_ == _Type.NOT_SET:
+                    p = _parameter(spec, _unset_means_default(spec, None))
                 if spec is not None and p.type_ != _Type.NOT_SET:
                     p = _parameter(spec, normalise_value(spec, p.value, self.unit))
             except Exception as exc:  # noqa: BLE001 - never raise into the parameter service
@@ -159,6 +210,7 @@ class ParameterBinder(Generic[T]):
                 if p.type_ == _Type.NOT_SET:
                     raise ParameterValidationError(f'{name} cannot be undeclared')
                 values[name] = normalise_value(self.specs[name], p.value, self.unit)
+                _refuse_bools(self.specs[name], values[name])
             self._pending = self.validate(values)
         except Exception as err:  # noqa: BLE001 - the reason goes back to the caller
             return SetParametersResult(successful=False, reason=str(err) or repr(err))
@@ -172,23 +224,3 @@ class ParameterBinder(Generic[T]):
                 self.apply(pending)
         except Exception as exc:  # noqa: BLE001 - never raise into the parameter service
             self.node.get_logger().error(f'installing parameters failed: {exc!r}')
-
-
-def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None = None) -> int:
-    """rclpy.init, build the node, spin until shutdown; 1 (with the reason on stderr) if
-    the node cannot be configured (a ValueError subclass or a ParameterException)."""
-    rclpy.init(args=args)
-    try:
-        node = make_node()
-    except (ValueError, ParameterException) as exc:
-        print(f'{label}: invalid configuration: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0

@@ -2,9 +2,8 @@
 
 :func:`load_run` turns a recording (MCAP or sqlite3) into an
 :class:`~hybrid_force_controller.tools.analysis.RunLog`; :class:`BagWriter` writes an MCAP bag
-with rosbag2 metadata version 8, the format ROS 2 Jazzy's rosbag2 writes and reads
-(``ros2 bag info`` / ``ros2 bag play``). Version 9 (Kilted and later) stores the QoS
-profiles as a YAML list, which Jazzy's reader rejects.
+with rosbag2 metadata version 8. Jazzy's rosbag2 (0.26) writes version 9 and reads both;
+version 8 is kept for older readers (Humble-era tools).
 """
 from __future__ import annotations
 

@@ -1,0 +1,119 @@
+"""
+Read the 1 kHz input messages straight from their CDR bytes (``raw=True`` subscriptions).
+
+rclpy turns every received message into Python objects (the message, its header, its
+time, ...), which costs more CPU at 1 kHz than the control law's own arithmetic; the
+controller and the sim need a few numbers from each message. These readers take the
+serialized message (XCDR1, as rmw_fastrtps sends it: a 4-byte encapsulation header, then
+the fields, each aligned to its size counted from the end of that header) and return
+plain values. Malformed bytes raise :class:`CdrError` (a ValueError).
+"""
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ['CdrError', 'JointStateData', 'WrenchData', 'read_float64_array',
+           'read_joint_state', 'read_wrench_stamped']
+
+
+class CdrError(ValueError):
+    """The bytes are not a well-formed serialized message of the expected type."""
+
+
+class JointStateData(NamedTuple):
+    """The fields of a sensor_msgs/JointState the controller uses."""
+
+    stamp_s: float
+    names: list[str]
+    position: np.ndarray
+    velocity: np.ndarray
+
+
+class WrenchData(NamedTuple):
+    """The fields of a geometry_msgs/WrenchStamped the controller uses."""
+
+    stamp_s: float
+    frame_id: str
+    force: tuple[float, float, float]
+
+
+_STRUCT = {fmt: struct.Struct(fmt) for fmt in ('<I', '<iI', '<II', '<3d')}
+
+
+class _Reader:
+    """Cursor over one serialized message."""
+
+    __slots__ = ('buf', 'pos', 'end')
+
+    def __init__(self, buf: bytes) -> None:
+        if len(buf) < 4 or buf[1] not in (0, 1):
+            raise CdrError('not a CDR message (encapsulation header)')
+        if buf[1] == 0:
+            raise CdrError('big-endian CDR is not supported')
+        self.buf, self.pos, self.end = buf, 4, len(buf)
+
+    def _take(self, fmt: str, size: int) -> tuple:
+        s = _STRUCT[fmt]
+        self.pos = 4 + (self.pos - 4 + size - 1) // size * size
+        if self.pos + s.size > self.end:
+            raise CdrError('message ends early')
+        values = s.unpack_from(self.buf, self.pos)
+        self.pos += s.size
+        return values
+
+    def uint32(self) -> int:
+        return self._take('<I', 4)[0]
+
+    def string(self) -> str:
+        n = self.uint32()
+        if n == 0 or self.pos + n > self.end:
+            raise CdrError('bad string length')
+        text = self.buf[self.pos:self.pos + n - 1]
+        self.pos += n
+        return text.decode()
+
+    def stamp(self) -> float:
+        sec, nanosec = self._take('<iI', 4)
+        return sec + 1e-9 * nanosec
+
+    def doubles(self) -> np.ndarray:
+        n = self.uint32()
+        if n == 0:
+            return np.empty(0)
+        self.pos = 4 + (self.pos - 4 + 7) // 8 * 8
+        if self.pos + 8 * n > self.end:
+            raise CdrError('message ends early')
+        out = np.frombuffer(self.buf, '<f8', n, self.pos)
+        self.pos += 8 * n
+        return out
+
+
+def read_joint_state(buf: bytes) -> JointStateData:
+    """Read stamp, names, positions and velocities of a serialized JointState."""
+    r = _Reader(buf)
+    stamp = r.stamp()
+    r.string()  # frame_id
+    names = [r.string() for _ in range(r.uint32())]
+    position = r.doubles()
+    return JointStateData(stamp, names, position, r.doubles())
+
+
+def read_wrench_stamped(buf: bytes) -> WrenchData:
+    """Read stamp, frame and force of a serialized WrenchStamped."""
+    r = _Reader(buf)
+    stamp = r.stamp()
+    frame_id = r.string()
+    return WrenchData(stamp, frame_id, r._take('<3d', 8))
+
+
+def read_float64_array(buf: bytes) -> np.ndarray:
+    """Read the data of a serialized std_msgs/Float64MultiArray (the layout is skipped)."""
+    r = _Reader(buf)
+    for _ in range(r.uint32()):  # layout.dim: label, size, stride
+        r.string()
+        r._take('<II', 4)
+    r.uint32()  # layout.data_offset
+    return r.doubles()

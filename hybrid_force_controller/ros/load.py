@@ -1,0 +1,73 @@
+"""
+Process measurements for ``bench --ros``: CPU time from ``/proc`` and a CPU load generator.
+
+``python -m hybrid_force_controller.ros.load --duty 0.3`` busy-loops 30 % of one core (in
+10 ms windows: busy for ``duty`` of each, asleep for the rest) until SIGINT/SIGTERM.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import time
+from typing import Sequence
+
+__all__ = ['cpu_seconds', 'main', 'CpuMeter']
+
+_TICKS = os.sysconf('SC_CLK_TCK')
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far, s (``/proc/<pid>/stat``)."""
+    with open(f'/proc/{pid}/stat') as f:
+        fields = f.read().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / _TICKS  # utime, stime (fields 14, 15)
+
+
+class CpuMeter:
+    """CPU use of a set of processes between :meth:`start` and :meth:`stop`, % of one core."""
+
+    def __init__(self, pids: dict[str, int]) -> None:
+        self.pids = dict(pids)
+        self._t0 = 0.0
+        self._cpu0: dict[str, float] = {}
+
+    def start(self) -> None:
+        self._t0 = time.monotonic()
+        self._cpu0 = {name: cpu_seconds(pid) for name, pid in self.pids.items()}
+
+    def stop(self) -> dict[str, float]:
+        """``{name: percent of one core}`` since :meth:`start`."""
+        wall = time.monotonic() - self._t0
+        return {name: 100.0 * (cpu_seconds(pid) - self._cpu0[name]) / wall
+                for name, pid in self.pids.items()}
+
+
+def busy_loop(duty: float, window_s: float = 0.01) -> None:
+    """Keep ``duty`` of one core busy until a signal ends the process."""
+    while True:
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < duty * window_s:
+            pass
+        time.sleep(max(0.0, (1.0 - duty) * window_s))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the load generator; exit 0 on SIGINT/SIGTERM."""
+    ap = argparse.ArgumentParser(prog='load', description=__doc__.splitlines()[0])
+    ap.add_argument('--duty', type=float, default=0.3, help='busy fraction of one core (0-1)')
+    args = ap.parse_args(argv)
+    if not 0.0 < args.duty <= 1.0:
+        print('error: --duty must be in (0, 1]', file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        busy_loop(args.duty)
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

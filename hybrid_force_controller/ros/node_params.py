@@ -1,0 +1,51 @@
+"""
+Parameters of the ROS nodes themselves (not of the control law): one schema per node.
+
+Declared through :func:`~.parameters.declare_schema` like the controller's
+:data:`~hybrid_force_controller.core.params.CONTROLLER_SCHEMA`, so they have descriptors,
+ranges and appear in ``ros2 param dump``.
+"""
+from __future__ import annotations
+
+from ..core.params import ParamSpec as _S
+
+__all__ = ['CONTROLLER_NODE_SCHEMA', 'EXECUTOR_SPEC', 'TICK_MODES', 'SENSOR_QOS',
+           'check_choice']
+
+TICK_MODES = ('timer', 'joint_state')
+SENSOR_QOS = ('best_effort', 'reliable')
+EXECUTOR_SPEC = _S('executor', 'string', 'events',
+                   "Executor: 'events' (rclpy.experimental.EventsExecutor, least CPU) or "
+                   "'single_threaded'.", read_only=True)
+
+CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
+    _S('telemetry_rate_hz', 'double', 100.0,
+       'Rate of ~/x, ~/x_desired, ~/wrench, ~/wrench_desired, ~/error, ~/theta_hat, Hz '
+       '(every k-th tick, k = round(rate_hz / telemetry_rate_hz); 0: off). Efforts go out '
+       'every tick.', 0.0, 10000.0),
+    _S('tick_mode', 'string', 'timer',
+       "'timer': tick at rate_hz on the node clock; 'joint_state': tick on each new joint "
+       'state (less delay and CPU; a watchdog checks every 5 periods and ticks after 2 '
+       'periods without a tick, so stale or slow inputs still lead to safe mode).',
+       read_only=True),
+    EXECUTOR_SPEC,
+    _S('autostart', 'bool', True,
+       'Configure and activate at start (false: a managed node that waits for the '
+       'lifecycle services).', read_only=True),
+    _S('use_bundled_model', 'bool', False,
+       "When robot_description is '': true = the bundled 2-link arm of the paper, false = "
+       'wait for the robot_description topic (robot_state_publisher).', read_only=True),
+    _S('sensor_qos', 'string', 'best_effort',
+       "Reliability of the joint_states and wrench subscriptions: 'best_effort' (matches "
+       "reliable and best-effort publishers) or 'reliable'.", read_only=True),
+    _S('sensor_depth', 'integer', 1,
+       'Queue depth of the joint_states and wrench subscriptions (1: only the newest sample '
+       'is kept; more keeps every sample of a burst).', 1, 1000, read_only=True),
+)
+
+
+def check_choice(name: str, value: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``; else a ValueError naming them."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {list(choices)}, got '{value}'")
+    return value

@@ -1,0 +1,112 @@
+"""
+Running a node process: ``--help``, the executor, and a clean exit on SIGINT/SIGTERM.
+
+:func:`run_node` builds the node, spins it with the executor its ``executor`` parameter names
+(``events``: :func:`rclpy.experimental.EventsExecutor`, ``single_threaded``) and returns
+0 when a signal ends it. rclpy's own signal handler is not installed: it shuts the context
+down under a running callback (an ``RCLError`` from a publisher) and never wakes
+``EventsExecutor.spin()``. Here SIGINT/SIGTERM complete a future instead, and the executor
+spins until that future is done, in slices (``spin_until_future_complete`` without a
+timeout busy-waits in the Jazzy EventsExecutor), so the node is destroyed before shutdown.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+from typing import Any, Callable, Sequence
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+
+__all__ = ['EXECUTORS', 'make_executor', 'print_help', 'run_node', 'spin_until_signal',
+           'wants_help']
+
+EXECUTORS = ('events', 'single_threaded')
+SPIN_SLICE_S = 0.25  # a signal is acted on within this long even when nothing else runs
+README = ('README.md of hybrid_force_controller (source tree, or share/hybrid_force_controller/'
+          'README.md once installed): sections "ROS 2 usage", "Topics and QoS", "Parameters"')
+
+
+def make_executor(kind: str, context: Any = None) -> Executor:
+    """Create an executor of ``kind`` (one of :data:`EXECUTORS`)."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    if kind == 'single_threaded':
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f"executor must be one of {EXECUTORS}, got '{kind}'")
+
+
+def spin_until_signal(node: Node, executor: Executor) -> int:
+    """Spin ``node`` until SIGINT or SIGTERM (or the context ends); the signal number or 0."""
+    stop = Future()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        if not stop.done():
+            stop.set_result(signum)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        executor.add_node(node)
+        while not stop.done() and node.context.ok():
+            executor.spin_until_future_complete(stop, timeout_sec=SPIN_SLICE_S)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return stop.result() if stop.done() else 0
+
+
+def wants_help(args: Sequence[str] | None) -> bool:
+    """``-h``/``--help`` before any ``--ros-args``."""
+    argv = list(sys.argv[1:] if args is None else args)
+    head = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
+    return any(a in ('-h', '--help') for a in head)
+
+
+def print_help(executable: str, summary: str, parameters: Sequence[tuple[str, str]]) -> None:
+    """Usage of a node executable: how to start it, its main parameters, where to read more."""
+    lines = [f'usage: {executable} [--help] [--ros-args [-p NAME:=VALUE] [--params-file FILE]'
+             ' [-r __ns:=/NAMESPACE] [-r FROM:=TO]]', '', summary, '',
+             'Executables of hybrid_force_controller: controller, sim (nodes); demo, bench,'
+             ' report, paper (programs, each with --help).', '', 'Main parameters:']
+    lines += [f'  {name:<22} {text}' for name, text in parameters]
+    lines += ['', 'Example: ros2 run hybrid_force_controller controller --ros-args '
+              '--params-file config/params.yaml', f'More: {README}']
+    print('\n'.join(lines))
+
+
+def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None = None) -> int:
+    """
+    Init rclpy, build the node and spin it until SIGINT/SIGTERM.
+
+    Returns 0 then, 1 (with the reason on stderr) if the node cannot be configured (a
+    ValueError subclass or a ParameterException).
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = make_node()
+    except (ValueError, ParameterException) as exc:
+        print(f'{label}: invalid configuration: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 1
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return 0
+    executor = None
+    try:
+        kind = node.get_parameter('executor').value if node.has_parameter('executor') \
+            else 'events'
+        executor = make_executor(kind)
+        spin_until_signal(node, executor)
+    except KeyboardInterrupt:  # a signal before the handlers were installed
+        pass
+    finally:
+        if executor is not None:
+            executor.shutdown(timeout_sec=5.0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,80 @@
+"""
+The controller's outgoing messages, built once and refilled in place every tick.
+
+:class:`ControllerOutputs` owns the effort publisher (every tick) and the telemetry
+publishers (``~/x``, ``~/x_desired``, ``~/wrench``, ``~/wrench_desired``, ``~/error``,
+``~/theta_hat``; every ``decimation``-th tick). The effort and theta_hat data live in
+``array.array('d')`` buffers that numpy views write into, so a tick allocates no message.
+"""
+from __future__ import annotations
+
+import array
+from typing import Any, Sequence
+
+from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
+import numpy as np
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+
+from .qos import COMMAND_QOS, DEFAULT_QOS
+
+__all__ = ['ControllerOutputs', 'TOPIC_COMMANDS']
+
+TOPIC_COMMANDS = 'effort_controller/commands'
+
+
+def _buffer_msg(size: int, layout: MultiArrayLayout | None = None
+                ) -> tuple[Float64MultiArray, np.ndarray]:
+    """Make a Float64MultiArray whose data is a fixed array.array, and a numpy view of it."""
+    msg = Float64MultiArray(data=array.array('d', bytes(8 * size)))
+    if layout is not None:
+        msg.layout = layout
+    return msg, np.frombuffer(msg.data, dtype=np.float64)
+
+
+class ControllerOutputs:
+    """Publishers and reusable messages of one controller node."""
+
+    def __init__(self, node: Any, base_frame: str, n_joints: int,
+                 theta_names: Sequence[str]) -> None:
+        self.node = node
+        self.pub_tau = node.create_publisher(Float64MultiArray, TOPIC_COMMANDS, COMMAND_QOS)
+        self.tau_msg, self.tau_view = _buffer_msg(n_joints)
+        p = len(theta_names)
+        layout = MultiArrayLayout(dim=[MultiArrayDimension(label=','.join(theta_names),
+                                                           size=p, stride=p)])
+        self.theta_msg, self.theta_view = _buffer_msg(p, layout)
+        self.x, self.x_d = PointStamped(), PointStamped()
+        self.f, self.f_d = WrenchStamped(), WrenchStamped()
+        self.e = Vector3Stamped()
+        self.stamped = (self.x, self.x_d, self.f, self.f_d, self.e)
+        for msg in self.stamped:
+            msg.header.frame_id = base_frame
+        self.vectors = (self.x.point, self.x_d.point, self.f.wrench.force,
+                        self.f_d.wrench.force, self.e.vector)
+        topics = (('~/x', self.x), ('~/x_desired', self.x_d), ('~/wrench', self.f),
+                  ('~/wrench_desired', self.f_d), ('~/error', self.e))
+        self.telemetry = [(node.create_publisher(type(m), t, DEFAULT_QOS), m)
+                          for t, m in topics]
+        self.telemetry.append((node.create_publisher(Float64MultiArray, '~/theta_hat',
+                                                     DEFAULT_QOS), self.theta_msg))
+
+    def publish_effort(self, tau: np.ndarray) -> None:
+        """Publish the joint efforts (command order)."""
+        self.tau_view[:] = tau
+        self.pub_tau.publish(self.tau_msg)
+
+    def publish_telemetry(self, out: Any, stamp_ns: int) -> None:
+        """Publish the tick's positions, forces, error and theta_hat (base frame)."""
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        for msg in self.stamped:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        for target, v in zip(self.vectors, (out.x_W, out.x_d_W, out.f_W, out.f_d_W, out.e_W)):
+            target.x, target.y, target.z = float(v[0]), float(v[1]), float(v[2])
+        self.theta_view[:] = out.theta_hat
+        for publisher, msg in self.telemetry:
+            publisher.publish(msg)
+
+    def destroy(self) -> None:
+        """Destroy every publisher (lifecycle cleanup)."""
+        for publisher in [self.pub_tau, *(p for p, _ in self.telemetry)]:
+            self.node.destroy_publisher(publisher)

@@ -55,7 +55,8 @@ from std_msgs.msg import Float64MultiArray, Header, String
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
 
 WATCHDOG_S = 0.2
-SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled')  # settable
+SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
+           'sensor_frozen')
 SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
     ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
@@ -64,6 +65,8 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
      'Point of the undeformed surface, base frame, m ([] = tool start: touching, 0 N).', {}),
     ('surface_normal', 'double_array', [0.0, -1.0, 0.0], 'Surface normal (into it), base.', {}),
     ('surface_enabled', 'bool', True, 'false: no surface (free motion, e.g. contact loss).', {}),
+    ('sensor_frozen', 'bool', False, 'true: the F/T sensor repeats its last reading (a frozen '
+     'sensor, for fault injection).', {}),
     ('masses', 'double_array', [], 'True link masses, kg ([] = URDF).', {}),
     ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
     ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
@@ -99,7 +102,8 @@ class SimNode(Node):
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
         self.p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
         plant = model.with_theta(v['masses']) if v['masses'] else model
-        self.sim = ArmSimulator(plant, self._surface(v)[0], q0, substeps=v['substeps'],
+        surface, self.sensor_frozen = self._surface(v)
+        self.sim = ArmSimulator(plant, surface, q0, substeps=v['substeps'],
                                 noise_sigma=v['noise_sigma'], seed=v['seed'])
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],
                                       self._surface, self._set_surface, unit=('surface_normal',))
@@ -148,17 +152,20 @@ class SimNode(Node):
         self.timer = self.create_timer(period, self._guarded('timer', tick), clock=steady)
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
 
-    def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None]:
-        """Build the surface the values describe (None when disabled); SurfaceError if not."""
-        if not isinstance(v['stiffness'], float) or not isinstance(v['surface_enabled'], bool):
-            raise SurfaceError('stiffness must be a number and surface_enabled a bool')
+    def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None, bool]:
+        """Build the surface the values describe (None when disabled) and the sensor's
+        frozen flag; SurfaceError if not."""
+        if not isinstance(v['stiffness'], float) or not all(
+                isinstance(v[k], bool) for k in ('surface_enabled', 'sensor_frozen')):
+            raise SurfaceError('stiffness must be a number, surface_enabled and sensor_frozen '
+                               'bools')
         surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or self.p0_W,
                                         v['surface_normal'])
-        return (surface if v['surface_enabled'] else None,)
+        return (surface if v['surface_enabled'] else None), v['sensor_frozen']
 
-    def _set_surface(self, surface: tuple[ElasticSurface | None]) -> None:
+    def _set_surface(self, values: tuple[ElasticSurface | None, bool]) -> None:
         """Swap the surface in; the contact torque measure() cached for the old one is dropped."""
-        self.sim.surface, self.sim._tau_c = surface[0], None
+        (self.sim.surface, self.sensor_frozen), self.sim._tau_c = values, None
 
     def _guarded(self, name: str, callback: Callable) -> Callable:
         """Wrap a callback: exceptions are counted and logged (throttled), never raised."""
@@ -239,9 +246,10 @@ class SimNode(Node):
         js.position = meas.q[self.to_msg].tolist()
         js.velocity = meas.qdot[self.to_msg].tolist()
         js.effort = meas.tau[self.to_msg].tolist()
-        F_ee = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
-        force = ft.wrench.force
-        force.x, force.y, force.z = float(F_ee[0]), float(F_ee[1]), float(F_ee[2])
+        if not self.sensor_frozen:  # frozen: the reused message repeats its last reading
+            F_ee = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
+            force = ft.wrench.force
+            force.x, force.y, force.z = float(F_ee[0]), float(F_ee[1]), float(F_ee[2])
         ft.header.stamp = js.header.stamp = stamp
         self.pub_ft.publish(ft)
         self.pub_js.publish(js)
@@ -274,6 +282,7 @@ HELP_PARAMETERS = (
     ('rate_hz', 'plant step rate (default 1000)'),
     ('masses', "true link masses, kg ([] = the URDF's)"),
     ('stiffness, surface_*', 'the elastic surface (settable at run time)'),
+    ('sensor_frozen', 'true: the F/T sensor repeats its last reading (settable)'),
     ('noise_sigma, seed', 'force sensor noise'),
     ('command_timeout', 'zero effort after this long without a command'),
     ('max_catch_up', 'most periods a late timer callback integrates'),

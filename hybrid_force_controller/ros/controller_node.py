@@ -30,7 +30,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from .cdr import read_joint_state, read_wrench_stamped
-from .diagnostics import controller_status, INPUT_FAULTS
+from .diagnostics import controller_status, EVENT_COUNTERS
 from .loop_timing import DelayStats, RateMeter
 from .model_source import expand_description, missing_description_hint
 from .node_params import check_choice, CONTROLLER_NODE_SCHEMA, SENSOR_QOS, TICK_MODES
@@ -103,7 +103,8 @@ class ControllerNode(LifecycleNode):
         self.commands = RateMeter()
         self._last = None
         self._mode, self._k_tick, self._t_state, self._t_tick = None, 0, 0.0, -1.0
-        self._faults, self._k_diag, self._margin_ms = 0, 0, float('inf')
+        self._events: dict[str, int] = {}
+        self._k_diag, self._margin_ms = 0, float('inf')
         self._decimation = self._decimation_for(self.node_values['telemetry_rate_hz'])
 
     def _decimation_for(self, telemetry_rate_hz: float) -> int:
@@ -314,10 +315,11 @@ class ControllerNode(LifecycleNode):
         extra = {'lifecycle_state': self.state_label,
                  'commands_per_s': self.commands.rate(time.monotonic()),
                  **self.delay.summary('delay')}
-        new_faults = 0
+        new_events: dict[str, int] = {}
         if self.runtime is not None:
-            faults = sum(self.runtime.counters[k] for k in INPUT_FAULTS)
-            new_faults, self._faults = faults - self._faults, faults
+            counts = {k: self.runtime.counters[k] for k in EVENT_COUNTERS}
+            new_events = {k: v - self._events.get(k, 0) for k, v in counts.items()}
+            self._events = counts
             self._k_diag += 1
             if self._k_diag % MARGIN_EVERY == 1:  # ~20 ms of work: not every second
                 self._margin_ms = self.runtime.delay_margin() * 1e3
@@ -325,7 +327,7 @@ class ControllerNode(LifecycleNode):
         if self.last_error and self.runtime is None:
             extra['configure_error'] = self.last_error
         self.pub_diag.publish(controller_status(
-            self.get_clock().now().to_msg(), self.get_name(), self.runtime, new_faults,
+            self.get_clock().now().to_msg(), self.get_name(), self.runtime, new_events,
             self.loop_stats.summary(), self.errors, extra, self.get_fully_qualified_name()))
 
 

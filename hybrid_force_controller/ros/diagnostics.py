@@ -9,21 +9,29 @@ from std_msgs.msg import Header
 
 from ..core.runtime import ControllerRuntime, Mode
 
-__all__ = ['INPUT_FAULTS', 'controller_status']
+__all__ = ['EVENT_COUNTERS', 'controller_status']
 
 _LEVEL = {Mode.RUNNING: DiagnosticStatus.OK, Mode.WAITING: DiagnosticStatus.WARN,
           Mode.APPROACH: DiagnosticStatus.WARN, Mode.NO_SURFACE: DiagnosticStatus.ERROR,
           Mode.SAFE: DiagnosticStatus.ERROR}
-# counters whose increase since the last status makes it at least WARN
-INPUT_FAULTS = ('joint_state_dropped', 'wrench_dropped', 'wrench_implausible')
+# counters whose increase since the last status makes it at least WARN (a fault shorter
+# than the 1 s between two statuses is still reported)
+EVENT_COUNTERS = ('joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
+                  'safe_mode_entries', 'approach_entries')
 
 
-def _warnings(runtime: ControllerRuntime, new_faults: int,
+def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
               extra: Mapping[str, object]) -> list[str]:
-    """Reasons to raise an OK status to WARN: dropped inputs, a delay near the margin."""
+    """Reasons to raise an OK status to WARN: events since the last status (dropped
+    inputs, safe mode, contact lost) and a measured delay near the margin."""
     out = []
-    if new_faults:
-        out.append(f'inputs dropped: {runtime.last_fault}')
+    dropped = sum(new_events.get(k, 0) for k in EVENT_COUNTERS[:3])
+    if dropped:
+        out.append(f'{dropped} inputs dropped: {runtime.last_fault}')
+    if new_events.get('safe_mode_entries', 0):
+        out.append(f'was in safe mode: {runtime.last_safe_reason}')
+    if new_events.get('approach_entries', 0):
+        out.append('contact was lost')
     margin_ms = float(extra.get('delay_margin_ms', math.inf))
     delay_ms = float(extra.get('delay_p99_ms', math.nan))
     if math.isfinite(delay_ms) and delay_ms + 1.0 > 0.5 * margin_ms:  # +1 ms: plant side
@@ -34,7 +42,7 @@ def _warnings(runtime: ControllerRuntime, new_faults: int,
 
 
 def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
-                      new_faults: int, timing: Mapping[str, float],
+                      new_events: Mapping[str, int], timing: Mapping[str, float],
                       callback_errors: Mapping[str, int],
                       extra: Mapping[str, object] | None = None,
                       qualified_name: str = '') -> DiagnosticArray:
@@ -42,8 +50,9 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
     Build one DiagnosticStatus: mode, contact, counters, the last input fault, loop timing.
 
     The level follows the mode (OK running; WARN waiting or approaching; ERROR safe or
-    surface not found) and is at least WARN when ``new_faults`` inputs were dropped since
-    the last status or the measured delay (``extra['delay_p99_ms']``) comes near the
+    surface not found) and is at least WARN when ``new_events`` (increments of
+    :data:`EVENT_COUNTERS` since the last status) are not all zero or the measured delay
+    (``extra['delay_p99_ms']``) comes near the
     delay margin (``extra['delay_margin_ms']``). ``extra`` also holds the lifecycle state
     and the command rate; floats are given with 4 significant digits.
     """
@@ -56,7 +65,7 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
         values: dict[str, object] = {'mode': 'waiting' if state in ('', 'active') else state}
     else:
         level, message = _LEVEL[runtime.mode], runtime.status
-        warnings = _warnings(runtime, new_faults, extra)
+        warnings = _warnings(runtime, new_events, extra)
         if warnings and level == DiagnosticStatus.OK:
             level, message = DiagnosticStatus.WARN, '; '.join([message, *warnings])
         status.level, status.message = level, message

@@ -17,7 +17,9 @@ from the arm's position and velocity (no effort jump); the hand-over from an app
 the force loop aligns the force integral so r is continuous. theta_hat and h integrate
 over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
 tick without a new state recomputes the command and integrates nothing, and a late state
-after a gap integrates a bounded step. Times are seconds on the caller's clock.
+after a gap integrates a bounded step. Every new state also feeds the online stiffness
+estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py). Times
+are seconds on the caller's clock.
 """
 from __future__ import annotations
 
@@ -40,6 +42,7 @@ from .margin import delay_margin
 from .params import ControllerParams, ParameterValidationError, build_params
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel
+from .stiffness_loop import StiffnessLoop, StiffnessStatus
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
@@ -57,7 +60,8 @@ class Mode(str, Enum):
 @dataclass
 class TickOutput:
     """One tick for the node to publish (3-D vectors in the base frame; ``tau`` in the
-    order of ``params.runtime.joints``, None while waiting)."""
+    order of ``params.runtime.joints``, None while waiting; ``k_hat`` the stiffness
+    estimate, N/m, NaN while unknown)."""
 
     tau: np.ndarray | None
     mode: Mode
@@ -69,6 +73,7 @@ class TickOutput:
     theta_hat: np.ndarray
     in_contact: bool
     status: str = ''
+    k_hat: float = math.nan
 
 
 @dataclass
@@ -108,6 +113,7 @@ class ControllerRuntime:
         self._clock = _Clock()
         self._r_n = 0.0
         self._handover = (-math.inf, 0.0)  # (stamp, normal r bias) of the last hand-over
+        self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -142,7 +148,7 @@ class ControllerRuntime:
             return math.inf
         try:
             return delay_margin(self.model, params.law, self._state.q,
-                                params.runtime.force_filter_hz)
+                                params.runtime.force_filter_hz, stiffness=params.stiffness)
         except (np.linalg.LinAlgError, ValueError):
             return math.inf
 
@@ -173,6 +179,7 @@ class ControllerRuntime:
         rt = params.runtime
         self._params = params
         self.ctrl.set_gains(params.law)
+        self._stiffness.configure(params.stiffness, params.law.n, self.ctrl)
         self._joints = JointInput(self.model.joint_names, rt.joints)
         self._cmd_order = [self.model.joint_names.index(j) for j in rt.joints]
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
@@ -237,6 +244,16 @@ class ControllerRuntime:
         """The contact state (hysteresis on the filtered normal force)."""
         return self._contact.active
 
+    @property
+    def stiffness_estimate(self) -> float:
+        """The online stiffness estimate, N/m (NaN while unknown)."""
+        return self._stiffness.k_hat
+
+    def stiffness_status(self) -> StiffnessStatus:
+        """The stiffness estimate and the k_s / lambda2 in use, for /diagnostics (WARN when
+        ``near_k_max``)."""
+        return self._stiffness.status(self.ctrl)
+
     def desired_position(self, t: float) -> np.ndarray:
         """The reference position at time ``t`` on the caller's clock (base frame)."""
         t0 = self._clock.t0
@@ -272,6 +289,8 @@ class ControllerRuntime:
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
+        if dt_state > 0.0:
+            self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
         self._r_n = out.r_n
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
@@ -414,7 +433,8 @@ class ControllerRuntime:
             e_W[self.model.task_index] = e
         tau = None if tau is None else tau[self._cmd_order]
         return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
-                          e_W, self.ctrl.theta_hat.copy(), self._contact.active, status)
+                          e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
+                          self._stiffness.k_hat)
 
 
 def _sine(params: ControllerParams) -> SineReference:

@@ -52,7 +52,9 @@ class ScenarioConfig:
 
 @dataclass
 class ScenarioResult:
-    """Time series of one run (3-D base-frame vectors), one row per plant step."""
+    """Time series of one run (3-D base-frame vectors), one row per plant step;
+    ``k_hat`` the controller's stiffness estimate (N/m, NaN while unknown), ``k_true`` the
+    simulated surface's k."""
 
     t: np.ndarray
     x_W: np.ndarray
@@ -69,6 +71,8 @@ class ScenarioResult:
     mode: list[str]
     runtime: ControllerRuntime
     log: LoopLog
+    k_hat: np.ndarray
+    k_true: float
 
 
 def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
@@ -89,4 +93,5 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
     contact = np.array([in_contact(float(n_W @ f)) for f in log.f_true_W])
     return ScenarioResult(log.t, log.x_W, log.x_d_W, log.f_W, log.f_true_W, log.f_d_W,
                           log.theta_hat, contact, log.tau, n_W.copy(),
-                          model.theta_nominal.copy(), model.theta_names, log.mode, runtime, log)
+                          model.theta_nominal.copy(), model.theta_names, log.mode, runtime, log,
+                          log.k_hat, float(cfg.k))

@@ -149,13 +149,36 @@ def settled(k: float = 1700.0, **kw) -> tuple[StiffnessEstimator, float, float]:
 
 
 def test_no_drift_without_excitation():
-    """100 s of constant f and x: nothing moves, bit for bit (no forgetting, (S5))."""
-    est, f, x = settled()
+    """100 s of constant f and x: nothing moves, bit for bit (no forgetting, (S5)); with
+    the change test (S9) off, not even when the force no longer fits."""
+    est, f, x = settled(change_force=0.0)
     before = (est.k_hat, est.k_hat_std, est.samples_used, est.valid)
     for f_const in (f, f + 0.5):  # consistent with the fit, then not
         k_hat = feed(est, np.full(100_000, f_const), np.full(100_000, x))
         assert np.all(k_hat == before[0])
     assert (est.k_hat, est.k_hat_std, est.samples_used, est.valid) == before
+
+
+@pytest.mark.parametrize('jump, detect_ms', [(0.5, 14), (5.0, 1), (-0.5, 14)])
+def test_a_lasting_misfit_is_a_change_of_the_surface(jump, detect_ms):
+    """(S9): the force leaves the fitted line at constant x (k or x0 changed under the
+    tool): detected once (|eps| - 0.2 N) dt sums to 0.2 N x 20 ms; the fit restarts from
+    the prior and the k_s command jumps up to k_s0; noise (sigma 0.05 N, filtered) on
+    100 s of a consistent force never triggers it."""
+    est, f, x = settled(1700.0)
+    ks_series(est, 5000)
+    rng = np.random.default_rng(5)
+    filt = LowPassFilter(200.0, size=1)
+    noisy = [filt.update(np.array([v]), DT) and float(filt.value[0])
+             for v in f + rng.normal(0.0, 0.05, 100_000)]
+    feed(est, noisy, np.full(len(noisy), x))
+    assert est.changes == 0 and est.valid and est.k_s == pytest.approx(1700.0, rel=1e-3)
+    for i in range(100):
+        est.update(f + jump, x, DT, True)
+        if est.changes:
+            break
+    assert i + 1 == detect_ms and est.changes == est.restarts == 1
+    assert est.k_hat == 6000.0 and not est.valid and est.k_s == 6000.0
 
 
 def test_noise_below_the_dead_zone_does_not_move_the_estimate():

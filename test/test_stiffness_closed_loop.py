@@ -10,6 +10,7 @@ delay unless the real-time timing model is used). Fixed seeds; 8-13 s runs.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -100,6 +101,36 @@ def test_steady_tracking_does_not_move_the_estimate(model):
     res = run(model, 1700.0, 0.5, duration=10.0, noise_sigma=0.05, seed=3)
     steady = res.k_hat[res.t >= 5.0]
     assert np.all(np.isfinite(steady)) and np.ptp(steady) == 0.0
+
+
+@pytest.mark.parametrize('k0, k1', [(1700.0, 3000.0), (3000.0, 1700.0), (5000.0, 300.0),
+                                    (300.0, 5000.0)])
+def test_a_surface_that_changes_under_the_tool_is_learned_again(model, k0, k1):
+    """k changes in contact at t = 6 s (the sim's surface swapped, x0 kept): the misfit
+    is detected (S9), k_s returns to 6000 and falls to the new estimate; without (S9)
+    the old and new data gave a 'valid' 889 N/m for 3000 N/m. 300 -> 5000 N/m throws
+    the tool off with or without the estimate (measured 0.22 s and 0.14 s lost)."""
+    def swap(rt, plant):
+        plant.surface = dataclasses.replace(plant.surface, k=k1)
+    res = run(model, k0, 0.5, duration=10.0, events=[Event(6.0, swap)])
+    after = res.t >= 6.0
+    outside = np.flatnonzero(~(np.abs(res.k_hat[after] - k1) <= 0.1 * k1))
+    assert outside[-1] + 1 < after.sum() and res.t[after][outside[-1] + 1] - 6.0 <= 2.0
+    st = res.runtime.stiffness_status()
+    assert st.changes >= 1 and st.valid and st.k_s == pytest.approx(k1, rel=0.02)
+    lost = float(np.sum(~res.in_contact[after])) * 1e-3
+    assert lost <= (0.3 if k1 > 2.0 * k0 else 0.0), lost
+
+
+def test_without_the_change_test_old_and_new_data_give_a_wrong_valid_estimate(model):
+    """Negative control of (S9): 1700 -> 3000 N/m with stiffness_change_force = 0 ends
+    with a 'valid' estimate of 955 N/m (k/k_s = 3.1, near where the loop breaks)."""
+    def swap(rt, plant):
+        plant.surface = dataclasses.replace(plant.surface, k=3000.0)
+    res = run(model, 1700.0, 0.5, duration=10.0, events=[Event(6.0, swap)],
+              overrides={'stiffness_change_force': 0.0})
+    st = res.runtime.stiffness_status()
+    assert st.valid and st.changes == 0 and st.k_hat < 0.5 * 3000.0, st
 
 
 # ---------------------------------------------------------------- force step

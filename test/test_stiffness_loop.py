@@ -196,11 +196,19 @@ def make_loop(model, **values):
     return loop, ctrl, params
 
 
-def press(loop, ctrl, k, touching=True, offset=0.0, **kw):
-    """Feed a synthetic press on a surface of stiffness k as new states (x_n = -y)."""
+def press(loop, ctrl, k, touching=True, offset=0.0, **kw) -> tuple[float, float]:
+    """Feed a synthetic press on a surface of stiffness k as new states (x_n = -y);
+    returns the last (f_n, x_n)."""
     f_n, x_n = synthetic(k, **kw)
     for f, x in zip(f_n, x_n):
         loop.update(ctrl, float(f), np.array([1.0, -(x + offset), 0.0]), DT, DT, touching)
+    return float(f_n[-1]), float(x_n[-1] + offset)
+
+
+def hold(loop, ctrl, f_n, x_n, steps, touching=True) -> None:
+    """Steady contact (or lifted off): the same sample as new states."""
+    for _ in range(steps):
+        loop.update(ctrl, f_n, np.array([1.0, -x_n, 0.0]), DT, DT, touching)
 
 
 def test_loop_sets_the_law_k_s_and_reports_nan_until_valid(model):
@@ -210,13 +218,12 @@ def test_loop_sets_the_law_k_s_and_reports_nan_until_valid(model):
     assert not st.near_k_max  # the prior sits at k_max: not a warning
     press(loop, ctrl, 500.0, duration=0.02)
     assert math.isnan(loop.k_hat) and ctrl.k_s == 6000.0  # not valid yet: k_s held
-    press(loop, ctrl, 500.0)
+    last = press(loop, ctrl, 500.0)
     st = loop.status(ctrl)
     assert loop.k_hat == pytest.approx(500.0, rel=1e-4) and st.valid and st.enabled
     assert ctrl.k_s == st.k_s and st.k_s < 6000.0  # falling, rate-limited (10/s)
-    for _ in range(3000):  # lifted off: the estimate stays, k_s arrives
-        loop.update(ctrl, 0.0, np.array([1.0, 1.7, 0.0]), DT, DT, False)
-    assert ctrl.k_s == pytest.approx(500.0, rel=1e-4)
+    hold(loop, ctrl, *last, 3000)  # steady contact: the estimate stays, k_s arrives
+    assert ctrl.k_s == pytest.approx(500.0, rel=1e-4) and loop.status(ctrl).changes == 0
     assert ctrl.lambda2 == pytest.approx(0.1 * 6000.0 / ctrl.k_s)
 
 
@@ -229,14 +236,13 @@ def test_loop_disabled_reports_but_leaves_the_law_alone(model):
 
 def test_switching_on_starts_from_the_law_k_s_and_off_returns_at_once(model):
     loop, ctrl, params = make_loop(model, stiffness_estimation=False, stiffness_k_hat0=1000.0)
-    press(loop, ctrl, 500.0)
+    last = press(loop, ctrl, 500.0)
     on = dataclasses.replace(params.stiffness, enabled=True)
     loop.configure(on, params.law.n, ctrl)
     assert ctrl.k_s == 6000.0  # no jump to the prior or the estimate
-    loop.update(ctrl, 0.0, np.array([1.0, 1.7, 0.0]), DT, DT, False)
+    hold(loop, ctrl, *last, 1)
     assert 6000.0 * math.exp(-10.0 * DT) <= ctrl.k_s < 6000.0
-    for _ in range(1000):
-        loop.update(ctrl, 0.0, np.array([1.0, 1.7, 0.0]), DT, DT, False)
+    hold(loop, ctrl, *last, 1000)
     ctrl.h = -0.2
     lambda2_h = ctrl.lambda2 * ctrl.h
     loop.configure(params.stiffness, params.law.n, ctrl)  # off again
@@ -260,22 +266,35 @@ def test_a_set_keeps_the_estimate_unless_prior_bounds_or_normal_change(model):
     assert est.k_hat == 2000.0 and math.isnan(loop.k_hat) and ctrl.k_s == before[-1]
 
 
-def test_a_new_contact_restarts_the_fit_and_keeps_k_s(model):
+def test_a_contact_loss_makes_the_surface_unknown_and_k_s_returns(model):
+    """Lifted off: NaN, the fit restarts from the prior, k_s jumps back to k_s0 = 6000
+    (lambda2 h continuous); the next surface (1 cm further, 1200 N/m) is learned alone."""
     loop, ctrl, _ = make_loop(model)
-    press(loop, ctrl, 500.0)
+    last = press(loop, ctrl, 500.0)
+    hold(loop, ctrl, *last, 1000)
+    assert ctrl.k_s == pytest.approx(500.0, rel=1e-3) and loop.contacts == 1
+    ctrl.h = -0.1
+    lambda2_h = ctrl.lambda2 * ctrl.h
     f_n, x_n = synthetic(1200.0)
-    x_n = x_n + 0.01  # another surface, 1 cm further
-    p_W = [np.array([1.0, -x, 0.0]) for x in x_n]
-    for _ in range(100):  # lifted off, moving to it
-        loop.update(ctrl, 0.0, p_W[0], DT, DT, False)
-    assert loop.contacts == 1 and loop.estimator.valid
-    k_s = ctrl.k_s
-    for i in range(f_n.size):
-        loop.update(ctrl, float(f_n[i]), p_W[i], DT, DT, True)
-        if i == 10:
-            assert loop.contacts == 2 and not loop.estimator.valid
-            assert ctrl.k_s >= k_s  # k_s does not fall to the unfinished fit (it may rise)
-    assert loop.k_hat == pytest.approx(1200.0, rel=1e-4)  # the old surface does not weigh
+    x_n = x_n + 0.01
+    hold(loop, ctrl, 0.0, float(x_n[0]), 100, touching=False)  # lifted off, moving there
+    st = loop.status(ctrl)
+    assert math.isnan(st.k_hat) and st.restarts == 1 and st.changes == 0 and not st.valid
+    assert (ctrl.k_s, ctrl.lambda2) == (6000.0, 0.1)
+    assert ctrl.lambda2 * ctrl.h == pytest.approx(lambda2_h)
+    for f, x in zip(f_n, x_n):
+        loop.update(ctrl, float(f), np.array([1.0, -x, 0.0]), DT, DT, True)
+    assert loop.contacts == 2 and loop.k_hat == pytest.approx(1200.0, rel=1e-4)
+
+
+def test_a_change_under_the_tool_makes_the_surface_unknown(model):
+    """(S9) through the loop: the force leaves the fitted line at constant x."""
+    loop, ctrl, _ = make_loop(model)
+    f, x = press(loop, ctrl, 500.0)
+    hold(loop, ctrl, f, x, 1000)
+    hold(loop, ctrl, f + 1.0, x, 10)
+    st = loop.status(ctrl)
+    assert st.changes == st.restarts == 1 and math.isnan(st.k_hat) and ctrl.k_s == 6000.0
 
 
 @pytest.mark.parametrize('k, k_max, near, known', [(5000.0, 6000.0, True, True),

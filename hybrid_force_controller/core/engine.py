@@ -220,7 +220,7 @@ class _Recorder:
         self.x_d[k] = runtime.desired_position(t) if out is not None else meas.p_W
         self.f_d[k] = runtime.f_d_W
         self.theta[k] = runtime.theta_hat
-        self.k_hat[k] = runtime.stiffness_estimate
+        self.k_hat[k] = math.nan if out is None else out.k_hat
         self.tau.append(np.zeros_like(meas.q) if tau is None else tau)
         self.mode.append('none' if out is None else str(out.mode))
 

@@ -149,6 +149,9 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
          'Largest relative increase rate of k_s, d ln k_s/dt, 1/s.', 0.0, 1e3, positive=True),
     _stf('stiffness_k_max_margin', 'double', 0.2,
          'Warn when the estimate is >= (1 - margin) k_max.', 0.0, 1.0),
+    _stf('stiffness_change_force', 'double', 0.2,
+         'Change test: a lasting prediction error above this restarts the estimate and '
+         'returns k_s to the configured one, N (0: off).', 0.0, 1e3),
     _stf('stiffness_regularisation', 'double', 1e-2,
          'Weight rho of the prior, in samples of a 1 N excursion.', 0.0, 1e6, positive=True),
     _stf('stiffness_force_floor', 'double', 0.01,

@@ -244,11 +244,6 @@ class ControllerRuntime:
         """The contact state (hysteresis on the filtered normal force)."""
         return self._contact.active
 
-    @property
-    def stiffness_estimate(self) -> float:
-        """The online stiffness estimate, N/m (NaN while unknown)."""
-        return self._stiffness.k_hat
-
     def stiffness_status(self) -> StiffnessStatus:
         """The stiffness estimate and the k_s / lambda2 in use, for /diagnostics (WARN when
         ``near_k_max``)."""

@@ -47,6 +47,15 @@ k_s command: a first-order lag in log space, rate-limited, down only to a valid 
     k_target = k_hat if valid or k_hat > k_s, else k_s (held);
 
 and the warning ``near_k_max <=> k_hat >= (1 - margin) k_max``.                          (S8)
+
+Change test on every in-contact sample of a valid estimate (a CUSUM of the a-priori
+residual ``eps = f_n - phi^T theta``: the surface's k or x0 changed under the tool)::
+
+    S_j = max(0, S_{j-1} + (|eps_j| - delta_c) dt),   change  <=>  S_j > delta_c T_c     (S9)
+
+A change, and a contact loss (the caller's :meth:`StiffnessEstimator.restart`), make the
+surface unknown again: the fit restarts from the prior and the k_s command jumps to
+``max(k_s, k_s0)``, never a higher loop gain than the configured k_s gives.
 """
 from __future__ import annotations
 
@@ -57,6 +66,7 @@ __all__ = ['MIN_SAMPLES', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessE
            'StiffnessEstimator']
 
 MIN_SAMPLES = 20.0  # effective exciting samples before the estimate may be valid (S6)
+CHANGE_TIME = 0.02  # T_c of (S9), s: |eps| must exceed delta_c by this much force x time
 
 
 class StiffnessError(ValueError):
@@ -69,7 +79,8 @@ class StiffnessConfigError(StiffnessError):
 
 _POSITIVE = ('k_min', 'k_max', 'k_s0', 'time_constant', 'excitation_window', 'valid_tol',
              'k_s_rate_down', 'k_s_rate_up', 'regularisation', 'force_floor')
-_NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'force_filter_hz')
+_NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'change_force',
+                 'force_filter_hz')
 
 
 @dataclass(frozen=True)
@@ -91,6 +102,7 @@ class StiffnessConfig:
     k_s_time_constant : T_s of (S7), s (0: no lag, rate limits only).
     k_s_rate_down, k_s_rate_up : rate limits of (S7), 1/s.
     k_max_margin : margin of (S8).
+    change_force : delta_c of (S9), N (0: no change test).
     regularisation : rho of (S3)-(S4); force_floor : sigma floor of (S6), N.
     force_filter_hz : cut-off of the caller's force filter, Hz (0: none), for (S0).
     """
@@ -108,6 +120,7 @@ class StiffnessConfig:
     k_s_rate_down: float = 10.0
     k_s_rate_up: float = 20.0
     k_max_margin: float = 0.2
+    change_force: float = 0.2
     regularisation: float = 1e-2
     force_floor: float = 0.01
     force_filter_hz: float = 200.0
@@ -168,7 +181,7 @@ class StiffnessEstimator:
         self.k_s_log_rate = 0.0  # d ln k_s / dt of the last k_s_command (for rdot)
         self.excited = False
         self.excitation_n = 0.0  # k_e |x_n - x_bar| of the last in-contact sample (S5), N
-        self.samples_used = self.samples_rejected = 0
+        self.samples_used = self.samples_rejected = self.restarts = self.changes = 0
 
     def forget_data(self, k_prior: float | None = None, *, restart_filter: bool = False) -> None:
         """Restart the regression (S2)-(S6) from the prior ``k_prior`` (default: the current
@@ -190,8 +203,16 @@ class StiffnessEstimator:
         self._x_bar = 0.0
         if restart_filter:
             self._x_f = None
+        self._cusum = 0.0  # S of (S9), N s
         self.saturated = False  # the projection onto [k_min, k_max] was active (S6)
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
+
+    def restart(self) -> None:
+        """The surface is unknown again (contact lost, or a change (S9)): the fit restarts
+        from the prior, the k_s command jumps to ``max(k_s, k_s0)``."""
+        self.forget_data(self.config.prior)
+        self._k_s, self.k_s_log_rate = max(self._k_s, self.config.k_s0), 0.0
+        self.restarts += 1
 
     def reconfigure(self, config: StiffnessConfig) -> None:
         """Install new settings, keeping the estimate where they allow it.
@@ -285,6 +306,9 @@ class StiffnessEstimator:
         x_n = self._x_f
         if not in_contact:
             return self.k_hat
+        if self._x_ref is not None and self._changed(f_n, x_n, dt):
+            self.changes += 1
+            self.restart()
         if self._x_ref is None:  # first contact: local origin and prior of b (S2)
             self._x_ref = self._x_bar = x_n
             self._b = self._b0 = f_n
@@ -298,6 +322,16 @@ class StiffnessEstimator:
         self.samples_used += 1
         self._rls_step(self.config.k_max * (x_n - self._x_ref), f_n, lam)
         return self.k_hat
+
+    def _changed(self, f_n: float, x_n: float, dt: float) -> bool:
+        """(S9) on one in-contact sample; only a valid estimate is tested."""
+        c = self.config
+        if c.change_force == 0.0 or not self.valid:
+            self._cusum = 0.0
+            return False
+        eps = f_n - (c.k_max * (x_n - self._x_ref) * self._kappa + self._b)
+        self._cusum = max(0.0, self._cusum + (abs(eps) - c.change_force) * dt)
+        return self._cusum > c.change_force * CHANGE_TIME
 
     def _rls_step(self, u: float, f_n: float, lam: float) -> None:
         """(S3), (S4), the projection onto the bounds and the residual statistics (S6)."""

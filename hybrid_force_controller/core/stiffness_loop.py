@@ -8,10 +8,12 @@ the rate-limited command (S7) through the O(1) ``set_k_s`` (control_law.py: ``c 
 ``lambda2 = lambda2_0 k_s0 / k_s``, ``lambda2 h`` continuous). The k_s of one state acts
 from the next tick on. Pure Python + numpy; times are arguments.
 
-Each new contact after the first (the contact detector's rising edge) restarts the
-regression from the current k_hat: the surface may have changed; k_s is kept, so it falls
-again only to a new valid estimate. Parameter sets keep the estimate unless its prior,
-bounds or the normal change (:meth:`StiffnessLoop.configure`).
+A contact loss (the contact detector's falling edge) and a change of the surface under
+the tool (S9) make the surface unknown again: the fit restarts from the prior, k_hat is
+reported NaN until valid again, and k_s jumps to ``max(k_s, k_s0)`` (the configured k_s,
+for which the delay margin was checked against any k <= k_max; a lower loop gain), then
+falls again only to a new valid estimate. Parameter sets keep the estimate unless its
+prior, bounds or the normal change (:meth:`StiffnessLoop.configure`).
 """
 from __future__ import annotations
 
@@ -39,7 +41,9 @@ class StiffnessStatus(NamedTuple):
     saturated: bool       # held at k_min or k_max by the projection
     samples_used: int     # exciting samples (S5) since the start
     samples_rejected: int  # non-finite samples
-    contacts: int         # contact episodes seen (each after the first restarts the fit)
+    contacts: int         # contact episodes seen
+    changes: int          # surface changes detected in contact (S9)
+    restarts: int         # times the surface became unknown (losses and changes)
 
 
 class StiffnessLoop:
@@ -92,13 +96,14 @@ class StiffnessLoop:
         (base frame, m), ``touching`` the runtime's contact state.
         """
         est = self.estimator
+        restarts = est.restarts
         if touching and not self._touching:
             self.contacts += 1
-            if self.contacts > 1:
-                est.forget_data()
+        elif self._touching and not touching:
+            est.restart()  # contact lost: the next surface is unknown
         self._touching = touching
         est.update(f_n, float(self._n_W @ p_W), dt_state, touching)
-        self._known = self._known or est.valid
+        self._known = est.valid or (self._known and est.restarts == restarts)
         if est.config.enabled:
             ctrl.set_k_s(est.k_s_command(dt_int), est.k_s_log_rate)
 
@@ -108,4 +113,5 @@ class StiffnessLoop:
         near = est.near_k_max and (self._known or est.saturated)  # not the prior alone
         return StiffnessStatus(est.config.enabled, self.k_hat, est.k_hat_std, est.valid,
                                ctrl.k_s, ctrl.lambda2, near, est.saturated,
-                               est.samples_used, est.samples_rejected, self.contacts)
+                               est.samples_used, est.samples_rejected, self.contacts,
+                               est.changes, est.restarts)

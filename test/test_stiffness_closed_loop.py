@@ -133,6 +133,26 @@ def test_without_the_change_test_old_and_new_data_give_a_wrong_valid_estimate(mo
     assert st.valid and st.changes == 0 and st.k_hat < 0.5 * 3000.0, st
 
 
+def test_a_parameter_set_keeps_the_estimate_in_the_loop(model):
+    """runtime.set_params (f_d, an estimator rate) at t = 3 s: the estimate, its validity
+    and the k_s in use are the same right after; a new prior makes it unknown."""
+    seen = []
+    def set_(values):
+        def action(rt, plant):
+            before = rt.stiffness_status()
+            rt.set_params(rt.validate({'theta_hat0': list(rt.params.law.theta_hat0), **values}))
+            seen.append((before, rt.stiffness_status()))
+        return action
+    run(model, 500.0, 0.5, duration=4.0, events=[
+        Event(3.0, set_({'f_d': 1.2, 'stiffness_k_s_rate_up': 5.0})),
+        Event(3.5, set_({'f_d': 1.2, 'stiffness_k_hat0': 2000.0}))])
+    (before, after), (_, reset) = seen
+    assert before.valid and before.k_hat == pytest.approx(500.0, rel=1e-3)
+    assert after == before
+    assert math.isnan(reset.k_hat) and not reset.valid
+    assert reset.k_s == pytest.approx(before.k_s, rel=1e-3)  # k_s kept, moves rate-limited
+
+
 # ---------------------------------------------------------------- force step
 def step_run(model, k, extra=None, duration=13.0) -> float:
     """2 % settling time of the true force after f_d 1 -> 2 N at t = 10 s (a parameter

@@ -100,12 +100,15 @@ def _plot_parameters(log: RunLog, path: Path) -> Path:
 
 
 def _plot_stiffness(log: RunLog, path: Path) -> Path:
-    """The online stiffness estimate over time (gaps where unknown), the true k dashed."""
+    """The online stiffness estimate over time (gaps where unknown), the true k dashed
+    with a +-10 % band."""
     fig, (ax,) = _new_figure(1)
     known = ~np.isnan(log.k_hat)
     ax.plot(log.t, log.k_hat, label='estimate k_hat' if known.any() else 'estimate (unknown)')
     if log.k_true is not None:
         ax.axhline(log.k_true, ls='--', color='black', label='true k')
+        ax.axhspan(0.9 * log.k_true, 1.1 * log.k_true, color='black', alpha=0.08,
+                   label='true k +- 10 %')
     if known.any():
         ax.plot(log.t[known][0], log.k_hat[known][0], 'o', color='tab:blue',
                 label=f'first valid, t = {log.t[known][0]:.2f} s')

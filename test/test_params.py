@@ -37,7 +37,7 @@ def rejects(model: RobotModel, values: dict, name: str) -> str:
 def test_schema_names_are_unique_and_match_the_dataclasses():
     names = [s.name for s in CONTROLLER_SCHEMA]
     assert len(names) == len(set(names))
-    assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime'}
+    assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime', 'stiffness'}
     law = {s.name for s in CONTROLLER_SCHEMA if s.group == 'law'}
     runtime = {s.name for s in CONTROLLER_SCHEMA if s.group == 'runtime'}
     assert law - {'gamma'} == set(LawGains.__dataclass_fields__) - {'Gamma'}

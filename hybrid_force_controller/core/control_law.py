@@ -29,6 +29,14 @@ Adaptation units. Eq. (26) is applied to e expressed in the paper's force-rate u
 with ``Gamma/k_a``, so the Lyapunov function (27) keeps its form; with the paper's
 Gamma = 70 I it makes the estimates converge in seconds instead of minutes.
 
+Time-varying k_s (the online stiffness estimate, stiffness.py). ``set_k_s`` changes k_s
+in O(1) without a new gain set: ``c = 1/k_s``, ``lambda2 = lambda2_0 k_s0 / k_s`` (lambda2_0,
+k_s0 the gains'), so that at ``k_s = k`` the normal loop is ``hddot + lambda1 hdot +
+lambda2_0 k_s0 h = 0``, the user's loop at the design stiffness k_s0 whatever the surface;
+h is rescaled so that ``lambda2 h`` (a velocity in r) is continuous, the anti-windup bound
+of h scales alike (``|lambda2 h| <= lambda2_0 integral_limit``), and rdot gains the term of
+the varying compliance, ``-cdot lambda1 df_n n`` with ``cdot = -c d(ln k_s)/dt``.
+
 Approach. Out of contact the runtime may replace the force loop along n by a position
 reference moving toward the surface (``ApproachRef``): the normal part of r becomes
 ``v_n - lambda1 (n^T x - x_n)``, the same first-order tracking the tangential part uses.
@@ -90,7 +98,16 @@ class _Derived(NamedTuple):
     n: np.ndarray          # the normal in task coordinates
     G: np.ndarray          # [r; rdot] = G z + force terms (see _linear_part)
     Gamma_inv: np.ndarray
-    c: float               # 1 / k_s
+
+
+class _Compliance:
+    """The k_s in use and what it fixes (updated in place by ``set_k_s``)."""
+
+    __slots__ = ('k_s', 'c', 'lambda2', 'h_limit', 'c_rate', 'override')
+
+    def __init__(self) -> None:
+        self.k_s = self.c = self.lambda2 = self.h_limit = self.c_rate = 0.0
+        self.override: float | None = None  # k_s set by set_k_s (None: the gains')
 
 
 def small_inverse(A: np.ndarray) -> np.ndarray:
@@ -128,6 +145,8 @@ class HybridForceController:
         self._project = model.parameter_set.project
         self._eye_n = np.eye(model.n)
         self._d: _Derived | None = None
+        self._k = _Compliance()
+        self.h = 0.0
         self.set_gains(gains)
         self.reset()
 
@@ -135,15 +154,53 @@ class HybridForceController:
     def gains(self) -> LawGains:
         return self._d.gains
 
+    @property
+    def k_s(self) -> float:
+        """The k_s in use, N/m (the gains' unless ``set_k_s`` set one)."""
+        return self._k.k_s
+
+    @property
+    def lambda2(self) -> float:
+        """The lambda2 in use, ``lambda2_0 k_s0 / k_s``, m/(N s^2)."""
+        return self._k.lambda2
+
     def set_gains(self, gains: LawGains) -> None:
-        """Install a validated gain set; derived matrices are computed here, once."""
+        """Install a validated gain set; derived matrices are computed here, once. A k_s
+        set by ``set_k_s`` stays in use (lambda2 follows the new gains' lambda2_0, k_s0)."""
         ax = list(self.model.task_axes)
         n = gains.n[ax]
         if self._d is not None and not np.array_equal(gains.n, self._d.gains.n):
             self.h = 0.0  # the force integral belongs to the old normal
         P_t = np.eye(len(ax)) - np.outer(n, n)
         self._d = _Derived(gains, n, self._linear_part(P_t, n, gains.lambda1),
-                           np.linalg.inv(gains.Gamma), 1.0 / gains.k_s)
+                           np.linalg.inv(gains.Gamma))
+        self._set_compliance(self._k.override, 0.0, rescale_h=False)
+
+    def set_k_s(self, k_s: float | None, log_rate: float = 0.0) -> None:
+        """Use ``k_s`` (N/m, finite > 0; None: the gains' k_s) from the next step on, O(1).
+
+        ``lambda2 = lambda2_0 k_s0 / k_s``; h is rescaled so that ``lambda2 h`` is
+        continuous; ``log_rate = d(ln k_s)/dt`` (1/s) adds the rdot term of the varying
+        compliance (module docstring). Raises :class:`ControlError` on a bad value.
+        """
+        if k_s is not None and not (isinstance(k_s, (int, float)) and k_s > 0.0
+                                    and math.isfinite(k_s)):
+            raise ControlError(f'k_s must be finite and > 0, got {k_s!r}')
+        if not math.isfinite(log_rate):
+            raise ControlError(f'log_rate must be finite, got {log_rate!r}')
+        self._set_compliance(k_s, log_rate, rescale_h=True)
+
+    def _set_compliance(self, k_s: float | None, log_rate: float, rescale_h: bool) -> None:
+        g, k = self._d.gains, self._k
+        k.override = k_s
+        k_s = g.k_s if k_s is None else float(k_s)
+        ratio = g.k_s / k_s  # exactly 1.0 at the gains' own k_s
+        lambda2 = g.lambda2 * ratio
+        if rescale_h and k.lambda2 > 0.0:
+            self.h *= k.lambda2 / lambda2
+        k.k_s, k.c, k.lambda2 = k_s, 1.0 / k_s, lambda2
+        k.h_limit = g.integral_limit / ratio
+        k.c_rate = k.c * log_rate
 
     def _linear_part(self, P_t: np.ndarray, n: np.ndarray, l1: float) -> np.ndarray:
         """G with ``G z = [r; rdot]`` minus their force terms, ``z = (x, xdot, x_d, xdot_d,
@@ -176,8 +233,8 @@ class HybridForceController:
         l1 = g.lambda1
         lin = d.G @ np.concatenate((kin.x, kin.xdot, ref.x_d_W, ref.xdot_d_W, ref.xddot_d_W))
         if approach is None:
-            r_n = self.force_loop_r_n(float(n @ f))[0] + r_bias[0]
-            rdot_n = -g.lambda2 * df_n + r_bias[1]
+            r_n, rdot_n = self.force_loop_r_n(float(n @ f))
+            r_n, rdot_n = r_n + r_bias[0], rdot_n + r_bias[1]
         else:
             r_n = approach.v_n - l1 * (float(n @ kin.x) - approach.x_n)
             rdot_n = approach.a_n + l1 * approach.v_n
@@ -185,10 +242,12 @@ class HybridForceController:
 
     def force_loop_r_n(self, f_n: float) -> tuple[float, float]:
         """Normal part of r in the force loop, ``-(c lambda1 (f_n - f_d) + lambda2 h)``,
-        and the mode-specific part of rdot's, ``-lambda2 (f_n - f_d)``."""
-        d = self._d
-        df_n = f_n - d.gains.f_d
-        return -(d.c * d.gains.lambda1 * df_n + d.gains.lambda2 * self.h), -d.gains.lambda2 * df_n
+        and the mode-specific part of rdot's, ``(c_rate lambda1 - lambda2) (f_n - f_d)``
+        (``c_rate``: the rate of change of the compliance, set_k_s)."""
+        g, k = self._d.gains, self._k
+        df_n = f_n - g.f_d
+        r_n = -(k.c * g.lambda1 * df_n + k.lambda2 * self.h)
+        return r_n, (k.c_rate * g.lambda1 - k.lambda2) * df_n
 
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
@@ -245,7 +304,8 @@ class HybridForceController:
                             g.theta_max)
         self.theta_hat = theta if self._project is None else self._project(theta)
         if force_loop:
-            self.h = min(max(self.h + df_n * dt, -g.integral_limit), g.integral_limit)
+            limit = self._k.h_limit
+            self.h = min(max(self.h + df_n * dt, -limit), limit)
         else:
             self.h = min(self.h, 0.0)
 

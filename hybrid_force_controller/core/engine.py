@@ -48,7 +48,8 @@ class Event:
 
 @dataclass
 class LoopLog:
-    """Per plant step: time, state, forces (3-D, base frame), reference, effort, theta_hat."""
+    """Per plant step: time, state, forces (3-D, base frame), reference, effort, theta_hat
+    and the stiffness estimate ``k_hat`` (N/m, NaN while unknown)."""
 
     t: np.ndarray
     x_W: np.ndarray
@@ -63,6 +64,7 @@ class LoopLog:
     ticks: int
     delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     tick_ns: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    k_hat: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass
@@ -200,6 +202,7 @@ class _Recorder:
         self.t = np.zeros(steps)
         self.x, self.x_d, self.f, self.f_true, self.f_d = (np.zeros((steps, 3)) for _ in range(5))
         self.theta = np.zeros((steps, p))
+        self.k_hat = np.full(steps, np.nan)
         self.tau: list[np.ndarray] = []
         self.mode: list[str] = []
         self.commands = self.ticks = 0
@@ -217,10 +220,11 @@ class _Recorder:
         self.x_d[k] = runtime.desired_position(t) if out is not None else meas.p_W
         self.f_d[k] = runtime.f_d_W
         self.theta[k] = runtime.theta_hat
+        self.k_hat[k] = math.nan if out is None else out.k_hat
         self.tau.append(np.zeros_like(meas.q) if tau is None else tau)
         self.mode.append('none' if out is None else Mode(out.mode).value)
 
     def result(self, delays: list[float]) -> LoopLog:
         return LoopLog(self.t, self.x, self.x_d, self.f, self.f_true, self.f_d, self.theta,
                        np.array(self.tau), self.mode, self.commands, self.ticks,
-                       np.array(delays), np.array(self.tick_ns))
+                       np.array(delays), np.array(self.tick_ns), self.k_hat)

@@ -18,9 +18,17 @@ over the left side); the delay margin is the smallest ``tau`` that puts a root t
 ``min_w (pi + arg G(j w) mod 2 pi) / w``. It is 0 if the loop is unstable without delay.
 The margin of a gain set is the worst over both masses of the axis and over surface
 stiffnesses up to ``k_max``.
+
+With the online stiffness estimate on (stiffness_loop.py) k_s moves without a parameter
+set, with ``lambda2 = lambda2_0 k_s0 / k_s``; a set is a promise for every k_s it may
+command, so the margin is then also the worst over k_s on a geometric grid of
+``[min(k_min, k_s0), max(k_max, k_s0)]`` against ``k = (1 + 3 tol) k_s`` (k_s falls only
+to a valid estimate, whose standard deviation is at most ``tol k_s``), ``0.3 k_s`` and
+``0.1 k_s`` (k_s above k while it falls).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Callable
 
@@ -28,10 +36,12 @@ import numpy as np
 
 from .params import LawGains
 from .robot_model import RobotModel
+from .stiffness import StiffnessConfig
 
-__all__ = ['axis_margin', 'delay_margin']
+__all__ = ['K_S_GRID', 'axis_margin', 'delay_margin', 'estimate_operating_points']
 
 _W = np.logspace(-1.0, 4.5, 2000)  # rad/s
+K_S_GRID = 5  # k_s values of the estimate's range in the margin (module docstring)
 
 
 def _crossing_margin(G: Callable[[np.ndarray], np.ndarray]) -> float:
@@ -104,19 +114,39 @@ def _axis_gains(model: RobotModel, g: LawGains, q: np.ndarray
     return M_x, K_I, g.n[list(model.task_axes)]
 
 
+def estimate_operating_points(g: LawGains, stiffness: StiffnessConfig
+                              ) -> list[tuple[LawGains, float]]:
+    """(gains with the k_s and lambda2 the law would use, surface k) over the k_s the
+    stiffness estimate may command (module docstring); empty when it is off."""
+    if not stiffness.enabled:
+        return []
+    lo, hi = min(stiffness.k_min, g.k_s), max(stiffness.k_max, g.k_s)
+    over = 1.0 + 3.0 * stiffness.valid_tol
+    points = []
+    for k_s in np.geomspace(lo, hi, K_S_GRID):
+        g_s = dataclasses.replace(g, k_s=float(k_s), lambda2=g.lambda2 * g.k_s / float(k_s))
+        points += [(g_s, r * float(k_s)) for r in (over, 0.3, 0.1)]
+    return points
+
+
 def delay_margin(model: RobotModel, g: LawGains, q: np.ndarray, filter_hz: float = 0.0,
-                 k_values: tuple[float, ...] | None = None) -> float:
+                 k_values: tuple[float, ...] | None = None,
+                 stiffness: StiffnessConfig | None = None) -> float:
     """Worst delay margin (s) at configuration ``q`` over the task inertia's extreme
     eigenvalues, both axes, and surface stiffnesses ``k_values`` (default k_max and
-    fractions of it)."""
+    fractions of it); with an enabled ``stiffness`` config also over the k_s the
+    estimate may command (:func:`estimate_operating_points`)."""
     M_x, K_I, n = _axis_gains(model, g, q)
     masses = np.linalg.eigvalsh(M_x)
     ks = k_values or (g.k_max, 0.3 * g.k_max, 0.1 * g.k_max)
+    points = [(g, k) for k in ks]
+    if stiffness is not None:
+        points += estimate_operating_points(g, stiffness)
     worst = math.inf
     t_basis = np.linalg.svd(np.eye(len(n)) - np.outer(n, n))[0][:, :len(n) - 1]
     for m in (masses.min(), masses.max()):
         for t in t_basis.T:
             worst = min(worst, axis_margin(g, m, float(t @ K_I @ t)))
-        for k in ks:
-            worst = min(worst, axis_margin(g, m, float(n @ K_I @ n), k, filter_hz))
+        for g_k, k in points:
+            worst = min(worst, axis_margin(g_k, m, float(n @ K_I @ n), k, filter_hz))
     return worst

@@ -1,6 +1,7 @@
 """The runtime's modes and what one tick gives the node (pure numpy)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import Enum
 
@@ -22,7 +23,8 @@ class Mode(str, Enum):
 @dataclass
 class TickOutput:
     """One tick for the node to publish (3-D vectors in the base frame; ``tau`` in the
-    order of ``params.runtime.joints``, None while waiting)."""
+    order of ``params.runtime.joints``, None while waiting; ``k_hat`` the stiffness
+    estimate, N/m, NaN while unknown)."""
 
     tau: np.ndarray | None
     mode: Mode
@@ -34,3 +36,4 @@ class TickOutput:
     theta_hat: np.ndarray
     in_contact: bool
     status: str = ''
+    k_hat: float = math.nan

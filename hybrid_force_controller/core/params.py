@@ -4,20 +4,24 @@ Every parameter has a type, a default, a description and bounds here; the ROS no
 declares them from :data:`CONTROLLER_SCHEMA` and ``config/*.yaml`` only overrides values.
 :func:`build_params` validates a full set once and freezes it into
 :class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
-(26), (29) of [1]) and the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
-filter, reference, timeouts, approach, sensor plausibility). Pure Python + numpy.
+(26), (29) of [1]), the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
+filter, reference, timeouts, approach, sensor plausibility) and the online stiffness
+estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``). Pure Python + numpy.
 """
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .stiffness import StiffnessConfig, StiffnessConfigError
+
 __all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'LawGains', 'ParamSpec',
            'ParameterValidationError', 'RuntimeConfig', 'build_params', 'check_stability',
-           'schema_defaults']
+           'check_stability_estimated', 'schema_defaults', 'STIFFNESS_FIELDS']
 
 
 class ParameterValidationError(ValueError):
@@ -28,7 +32,7 @@ class ParameterValidationError(ValueError):
 class ParamSpec:
     """One parameter: ROS type (``double``, ``integer``, ``double_array``, ``string_array``,
     ``string``, ``bool``), default, description, closed bounds (``None``: unbounded) and
-    the group it configures (``law`` or ``runtime``)."""
+    the group it configures (``law``, ``runtime`` or ``stiffness``)."""
 
     name: str
     kind: str
@@ -43,6 +47,10 @@ class ParamSpec:
 
 def _law(*args: Any, **kwargs: Any) -> ParamSpec:
     return ParamSpec(*args, group='law', **kwargs)
+
+
+def _stf(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='stiffness', **kwargs)
 
 
 _S = ParamSpec
@@ -115,7 +123,45 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('reject_frozen_wrench', 'bool', True,
        'Treat bit-identical force readings as stale (a frozen sensor leads to safe mode '
        'after state_timeout).'),
+    # the online stiffness estimate (stiffness.py, docs/design.md): symbols (S0)-(S8)
+    _stf('stiffness_estimation', 'bool', True,
+         'Use the online stiffness estimate as k_s of eq. (11), with lambda2 = lambda2 '
+         'k_s/k_hat (false: k_s and lambda2 as set; the estimate is still reported).'),
+    _stf('k_min', 'double', 50.0, 'Lower bound of the stiffness estimate, N/m (< k_max).',
+         0.0, 1e8, positive=True),
+    _stf('stiffness_k_hat0', 'double', 0.0,
+         'Prior of the stiffness estimate and first k_s command, N/m (0: k_s).', 0.0, 1e8),
+    _stf('stiffness_time_constant', 'double', 2.0,
+         'Forgetting time constant T_f of the estimate, s of exciting contact.', 0.01, 1e4),
+    _stf('stiffness_excitation', 'double', 0.05,
+         'Excitation dead zone delta_f: samples with k_e |x_n - x_bar| below it are not '
+         'used, N.', 0.0, 1e3),
+    _stf('stiffness_excitation_window', 'double', 0.2,
+         'Time constant T_e of the mean x_bar in the excitation test, s.', 0.001, 1e3),
+    _stf('stiffness_valid_tol', 'double', 0.05,
+         'The estimate is valid (k_s may fall to it) when its standard deviation is below '
+         'this fraction of it.', 0.0, 1.0, positive=True),
+    _stf('stiffness_k_s_time_constant', 'double', 0.1,
+         'Time constant T_s with which k_s follows the estimate, s.', 0.0, 1e3),
+    _stf('stiffness_k_s_rate_down', 'double', 10.0,
+         'Largest relative decrease rate of k_s, |d ln k_s/dt|, 1/s.', 0.0, 1e3, positive=True),
+    _stf('stiffness_k_s_rate_up', 'double', 20.0,
+         'Largest relative increase rate of k_s, d ln k_s/dt, 1/s.', 0.0, 1e3, positive=True),
+    _stf('stiffness_k_max_margin', 'double', 0.2,
+         'Warn when the estimate is >= (1 - margin) k_max.', 0.0, 1.0),
+    _stf('stiffness_change_force', 'double', 0.2,
+         'Change test: a lasting prediction error above this restarts the estimate and '
+         'returns k_s to the configured one, N (0: off).', 0.0, 1e3),
+    _stf('stiffness_regularisation', 'double', 1e-2,
+         'Weight rho of the prior, in samples of a 1 N excursion.', 0.0, 1e6, positive=True),
+    _stf('stiffness_force_floor', 'double', 0.01,
+         'Floor of the residual standard deviation in the validity test, N.', 0.0, 1e3,
+         positive=True),
 )
+#: schema name -> StiffnessConfig field (k_max, k_s and force_filter_hz are shared).
+STIFFNESS_FIELDS = {s.name: 'enabled' if s.name == 'stiffness_estimation'
+                    else s.name.removeprefix('stiffness_')
+                    for s in CONTROLLER_SCHEMA if s.group == 'stiffness'}
 _SPECS = {s.name: s for s in CONTROLLER_SCHEMA}
 
 # The robot model, read once at start-up (shared by the controller and the sim node).
@@ -179,10 +225,12 @@ class RuntimeConfig:
 
 @dataclass(frozen=True)
 class ControllerParams:
-    """One validated, frozen parameter set: the law's gains and the runtime's configuration."""
+    """One validated, frozen parameter set: the law's gains, the runtime's configuration
+    and the stiffness estimate's."""
 
     law: LawGains
     runtime: RuntimeConfig
+    stiffness: StiffnessConfig
 
 
 def schema_defaults() -> dict[str, Any]:
@@ -200,6 +248,23 @@ def check_stability(lambda1: float, lambda2: float, k_max: float) -> None:
         raise ParameterValidationError(
             f'unstable gains, eq. (29) needs lambda1^2 > 2*lambda2*k_max: '
             f'lambda1^2 = {lhs:g} <= 2*lambda2*k_max = {rhs:g}')
+
+
+def check_stability_estimated(lambda1: float, lambda2: float, k_s: float) -> None:
+    """Eq. (29) at the operating point of the stiffness estimate: ``lambda1^2 > 2 lambda2
+    k_s``, lambda2 and k_s the configured ones.
+
+    With ``k_s := k_hat`` and ``lambda2 k_s`` held (control_law.py) the normal loop on a
+    surface k is ``hddot + (k/k_hat) lambda1 hdot + lambda2 k_s (k/k_hat) h = 0``; (28)
+    is negative semi-definite iff ``k_hat / k < lambda1^2 / (2 lambda2 k_s)``. This asks
+    it at an exact estimate; the ratio is the overestimate the gains tolerate (1.33 with
+    the defaults, against the 5 % standard deviation of a valid estimate).
+    """
+    lhs, rhs = lambda1 ** 2, 2.0 * lambda2 * k_s
+    if not lhs > rhs:
+        raise ParameterValidationError(
+            f'with stiffness_estimation, eq. (29) at k_s = k_hat needs lambda1^2 > '
+            f'2*lambda2*k_s: lambda1^2 = {lhs:g} <= 2*lambda2*k_s = {rhs:g}')
 
 
 def _scalar(spec: ParamSpec, value: Any) -> float:
@@ -325,4 +390,20 @@ def build_params(model: Any, values: Mapping[str, Any] | None = None) -> Control
     v = {**schema_defaults(), 'joints': list(model.joint_names), **values}
     s = {name: _scalar(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'double'}
     s.update({name: _bool(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'bool'})
-    return ControllerParams(law=_law_gains(v, s, model), runtime=_runtime_config(v, s, model))
+    return ControllerParams(law=_law_gains(v, s, model), runtime=_runtime_config(v, s, model),
+                            stiffness=_stiffness_config(s))
+
+
+def _stiffness_config(s: Mapping[str, Any]) -> StiffnessConfig:
+    """The ``stiffness`` group with the shared k_max, k_s and force_filter_hz."""
+    if s['stiffness_estimation']:
+        check_stability_estimated(s['lambda1'], s['lambda2'], s['k_s'])
+    try:
+        return StiffnessConfig(k_max=s['k_max'], k_s0=s['k_s'],
+                               force_filter_hz=s['force_filter_hz'],
+                               **{f: s[name] for name, f in STIFFNESS_FIELDS.items()})
+    except StiffnessConfigError as exc:  # name the parameters, not the fields
+        msg = str(exc)
+        for name, f in sorted(STIFFNESS_FIELDS.items(), key=lambda i: -len(i[1])):
+            msg = re.sub(rf'(?<!\w){f}(?!\w)', name, msg)
+        raise ParameterValidationError(msg) from None

@@ -17,7 +17,9 @@ from the arm's position and velocity (no effort jump); the hand-over from an app
 the force loop aligns the force integral so r is continuous. theta_hat and h integrate
 over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
 tick without a new state recomputes the command and integrates nothing, and a late state
-after a gap integrates a bounded step. Times are seconds on the caller's clock.
+after a gap integrates a bounded step. Every new state also feeds the online stiffness
+estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py). Times
+are seconds on the caller's clock.
 """
 from __future__ import annotations
 
@@ -40,6 +42,7 @@ from .modes import Mode, TickOutput
 from .params import ControllerParams, ParameterValidationError, build_params
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel
+from .stiffness_loop import StiffnessLoop, StiffnessStatus
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
@@ -83,6 +86,7 @@ class ControllerRuntime:
         self._r_n = 0.0
         self._rdot_n = 0.0
         self._handover = (-math.inf, 0.0, 0.0)  # (stamp, r_n and rdot_n gaps) at hand-over
+        self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -117,7 +121,7 @@ class ControllerRuntime:
             return math.inf
         try:
             return delay_margin(self.model, params.law, self._state.q,
-                                params.runtime.force_filter_hz)
+                                params.runtime.force_filter_hz, stiffness=params.stiffness)
         except (np.linalg.LinAlgError, ValueError):
             return math.inf
 
@@ -148,6 +152,7 @@ class ControllerRuntime:
         rt = params.runtime
         self._params = params
         self.ctrl.set_gains(params.law)
+        self._stiffness.configure(params.stiffness, params.law.n, self.ctrl)
         self._joints = JointInput(self.model.joint_names, rt.joints)
         self._cmd_order = [self.model.joint_names.index(j) for j in rt.joints]
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
@@ -212,6 +217,11 @@ class ControllerRuntime:
         """The contact state (hysteresis on the filtered normal force)."""
         return self._contact.active
 
+    def stiffness_status(self) -> StiffnessStatus:
+        """The stiffness estimate and the k_s / lambda2 in use, for /diagnostics (WARN when
+        ``near_k_max``)."""
+        return self._stiffness.status(self.ctrl)
+
     def desired_position(self, t: float) -> np.ndarray:
         """The reference position at time ``t`` on the caller's clock (base frame)."""
         t0 = self._clock.t0
@@ -247,6 +257,8 @@ class ControllerRuntime:
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
+        if dt_state > 0.0:
+            self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
         self._r_n, self._rdot_n = out.r_n, out.rdot_n
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
@@ -392,7 +404,8 @@ class ControllerRuntime:
             e_W[self.model.task_index] = e
         tau = None if tau is None else tau[self._cmd_order]
         return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
-                          e_W, self.ctrl.theta_hat.copy(), self._contact.active, status)
+                          e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
+                          self._stiffness.k_hat)
 
 
 def _sine(params: ControllerParams) -> SineReference:

@@ -55,13 +55,16 @@ class ScenarioConfig:
 @dataclass(kw_only=True)
 class ScenarioResult(LoopLog):
     """The engine's log of one run plus what the analysis needs: contact (the one
-    predicate on the true force), the normal, the true parameters and the runtime."""
+    predicate on the true force), the normal, the true parameters, the simulated
+    surface's k (``k_true``; the log's ``k_hat`` is the controller's estimate, NaN while
+    unknown) and the runtime."""
 
     in_contact: np.ndarray
     n_W: np.ndarray
     theta_true: np.ndarray
     theta_names: tuple[str, ...]
     runtime: ControllerRuntime
+    k_true: float
 
     @property
     def log(self) -> LoopLog:
@@ -87,4 +90,4 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
     contact = np.array([in_contact(float(n_W @ f)) for f in log.f_true_W])
     return ScenarioResult(**vars(log), in_contact=contact, n_W=n_W.copy(),
                           theta_true=model.theta_nominal.copy(),
-                          theta_names=model.theta_names, runtime=runtime)
+                          theta_names=model.theta_names, runtime=runtime, k_true=float(cfg.k))

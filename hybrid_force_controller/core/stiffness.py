@@ -5,84 +5,68 @@ Interacting in Constrained Motion with Unknown Non-Rigid Environments".
 
 Pure Python: the 2 x 2 closed forms on floats need no numpy. Time is an argument, nothing
 reads a clock, nothing is allocated per call beyond Python floats. Equations (S0)-(S8) are
-this module's; docs/design.md, "Online stiffness estimate", explains the choices.
+this module's; docs/design.md, "Online stiffness estimate", gives the reasons and figures.
 
-Model. Eqs. (12)-(13), ``f = k n n^T (x - x0)`` inside the surface and ``f = 0`` outside,
-read along ``n`` with ``f_n = n^T f`` and ``x_n = n^T x`` (base frame) while in contact::
+Model: (12)-(13) along n, ``f_n = n^T f``, ``x_n = n^T x`` (base frame), in contact::
 
-    f_n = k (x_n - x0_n)                                                        (S1)
+    f_n = k (x_n - x0_n)                                                                (S1)
 
-The force reaching the estimator is low-pass filtered (first order, cut-off ``f_c``, the
-controller's ``force_filter_hz``); a filter lag between ``f_n`` and ``x_n`` biases the
-slope (1-2 % at 200 Hz in the paper scenario, 10 % at 50 Hz). So ``x_n`` passes through
-the same filter before (S1)-(S8), which keeps (S1) exact for the filtered pair (the filter
-is linear with unit DC gain)::
+``x_n`` passes through the caller's first-order force filter (cut-off ``f_c``) so that
+the filtered pair obeys (S1) exactly (unit DC gain; a lag on one side only biases k)::
 
-    x_n <- x_n,f + a (x_n - x_n,f),   a = 1 - exp(-2 pi f_c dt)                        (S0)
+    x_n <- x_n,f + a (x_n - x_n,f),   a = 1 - exp(-2 pi f_c dt)                         (S0)
 
-The surface point ``x0_n = n^T x0`` is unknown too. With a local origin ``x_ref`` (``x_n``
-at the first contact sample, for conditioning) and the scale ``k_max``::
+With a local origin ``x_ref`` (x_n at the first contact sample) and the scale ``k_max``::
 
-    f_n = phi^T theta,  phi = (u, 1),  u = k_max (x_n - x_ref)  [N],
-                        theta = (kappa, b),  kappa = k / k_max,  b = k (x_ref - x0_n)  [N]  (S2)
+    f_n = phi^T theta,  phi = (u, 1),  u = k_max (x_n - x_ref) [N],
+                        theta = (kappa, b),  kappa = k / k_max,  b = k (x_ref - x0_n)    (S2)
 
-Recursive least squares with exponential forgetting and a regularisation towards the prior
-``theta0 = (k_hat0 / k_max, f_n(x_ref))``, in information form (``R = P^-1``, 2 x 2), over
-the *exciting* in-contact samples j only::
+Recursive least squares with forgetting, regularised towards ``theta0 = (k_prior / k_max,
+f_n(x_ref))``, information form (``R = P^-1``), over *exciting* in-contact samples j::
 
     R_j     = lam R_{j-1} + (1 - lam) rho D + phi phi^T,   lam = exp(-dt / T_f)          (S3)
     theta_j = theta_{j-1} + R_j^-1 [(1 - lam) rho D (theta0 - theta_{j-1})
                                     + phi (f_n - phi^T theta_{j-1})]                    (S4)
 
-with ``D = diag(1 N^2, 1)``. ``theta_j`` minimises ``sum_i lam^(j-i) (f_n,i - phi_i^T theta)^2
-+ rho |theta - theta0|_D^2``; so ``R >= rho D`` (no covariance wind-up) and ``rho`` counts
-the prior as ``rho`` samples of a 1 N excursion. After (S4) ``kappa`` is projected onto
-``[k_min, k_max] / k_max`` in the metric R (``b`` moves by ``-R_ub / R_bb`` times the
-correction of ``kappa``), so the estimate stays the best fit inside the bounds.
-
-Excitation test (a dead zone on the regressor, never on the force, so the selection does
-not bias the least squares). ``x_bar`` is an exponential mean of ``x_n`` over ``T_e`` on
-in-contact samples; sample j is exciting when its predicted force excursion is large::
+``D = diag(1 N^2, 1)``; then ``kappa`` is projected onto ``[k_min, k_max] / k_max`` in the
+metric R. Excitation (a dead zone on the regressor, never on the force: no bias), with
+``x_bar`` an exponential mean of x_n over ``T_e``::
 
     k_e |x_n - x_bar| >= delta_f,   k_e = k_hat if valid (S6) else k_max                (S5)
 
-``k_e = k_max`` until the estimate is valid: an early, noise-driven k_hat near k_min would
-otherwise shrink the predicted excursion and lock the gate (the estimate could not recover).
-
-A sample that is not exciting changes nothing: no forgetting without excitation, so the
-estimate does not drift in steady state. Out-of-contact and non-finite samples are ignored.
-
-Validity. ``s2`` is the forgetting-weighted mean of the squared a-posteriori residuals
-(floored at ``sigma_floor^2``), ``w`` the effective number of samples::
+A sample that is not exciting changes nothing (no forgetting, no drift). Validity, with
+``s2`` the forgetting-weighted mean squared residual (floored) and ``w`` the effective
+number of samples::
 
     sigma_k = k_max sqrt(s2 (R^-1)_uu),
     valid  <=>  w >= 20  and  sigma_k <= tol k_hat  and  the bounds were not active      (S6)
 
-An estimate held at k_min or k_max by the projection is a bound, not an estimate of k: the
-surface is outside the range, or (12)-(13) do not describe it (e.g. a large residual).
+k_s command: a first-order lag in log space, rate-limited, down only to a valid estimate::
 
-k_s command: a first-order lag in log space, rate-limited (faster upwards: a larger k_s
-lowers the gain ``(k / k_s) lambda1`` of the normal loop, the safe direction)::
+    d ln k_s / dt = clip((ln k_target - ln k_s) / T_s, -rate_down, rate_up),             (S7)
+    k_target = k_hat if valid or k_hat > k_s, else k_s (held);
 
-    d ln k_s / dt = clip((ln k_target - ln k_s) / T_s, -rate_down, rate_up)              (S7)
+and the warning ``near_k_max <=> k_hat >= (1 - margin) k_max``.                          (S8)
 
-with ``k_target = k_hat`` while valid or above ``k_s``, else ``k_s`` is held: k_s falls
-only to a valid estimate, and rises whenever the estimate is above it. Warning flag::
+Change test on every in-contact sample of a valid estimate (a CUSUM of the a-priori
+residual ``eps = f_n - phi^T theta``: the surface's k or x0 changed under the tool)::
 
-    near_k_max  <=>  k_hat >= (1 - margin) k_max                                         (S8)
+    S_j = max(0, S_{j-1} + (|eps_j| - delta_c) dt),   change  <=>  S_j > delta_c T_c     (S9)
+
+A change, and a contact loss (the caller's :meth:`StiffnessEstimator.restart`), make the
+surface unknown again: the fit restarts from the prior and the k_s command jumps to
+``max(k_s, k_s0)``, never a higher loop gain than the configured k_s gives.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Mapping, NamedTuple
 
-from .params import ParamSpec
+__all__ = ['MIN_SAMPLES', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
+           'StiffnessEstimator']
 
-__all__ = ['STIFFNESS_SCHEMA', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
-           'StiffnessEstimator', 'StiffnessStatus', 'stiffness_config_from_values']
-
-_MIN_SAMPLES = 20.0  # effective exciting samples before the estimate may be valid (S6)
+MIN_SAMPLES = 20.0  # effective exciting samples before the estimate may be valid (S6)
+CHANGE_TIME = 0.02  # T_c of (S9), s: |eps| must exceed delta_c by this much force x time
 
 
 class StiffnessError(ValueError):
@@ -93,70 +77,41 @@ class StiffnessConfigError(StiffnessError):
     """A stiffness-estimator setting is rejected; the message names it and says why."""
 
 
-_S = ParamSpec
-#: Proposed entries of the controller schema (``k_max`` is the existing one, shared).
-STIFFNESS_SCHEMA: tuple[ParamSpec, ...] = (
-    _S('stiffness_estimation', 'bool', False,
-       'Use the online stiffness estimate as k_s of eq. (11) (false: k_s stays as set; the '
-       'estimate is still computed and reported).'),
-    _S('k_min', 'double', 50.0, 'Lower bound of the stiffness estimate, N/m (< k_max).',
-       0.0, 1e8, positive=True),
-    _S('stiffness_k_hat0', 'double', 0.0,
-       'Initial stiffness estimate and k_s command, N/m (0: the configured k_s).', 0.0, 1e8),
-    _S('stiffness_time_constant', 'double', 2.0,
-       'Forgetting time constant T_f of the estimator, s of exciting contact (>= 20 periods).',
-       0.01, 1e4),
-    _S('stiffness_excitation', 'double', 0.05,
-       'Excitation dead zone delta_f: samples with k_e |x_n - x_bar| below it are not used, N.',
-       0.0, 1e3),
-    _S('stiffness_excitation_window', 'double', 0.2,
-       'Time constant T_e of the mean x_bar of x_n in the excitation test, s.', 0.001, 1e3),
-    _S('stiffness_valid_tol', 'double', 0.05,
-       'k_hat is valid (and used) when its standard deviation is below this fraction.',
-       0.0, 1.0, positive=True),
-    _S('stiffness_k_s_time_constant', 'double', 0.1,
-       'Time constant T_s with which k_s follows a valid k_hat, s.', 0.0, 1e3),
-    _S('stiffness_k_s_rate_down', 'double', 10.0,
-       'Largest relative decrease rate of k_s, |d ln k_s/dt|, 1/s.', 0.0, 1e3, positive=True),
-    _S('stiffness_k_s_rate_up', 'double', 20.0,
-       'Largest relative increase rate of k_s, d ln k_s/dt, 1/s.', 0.0, 1e3, positive=True),
-    _S('stiffness_k_max_margin', 'double', 0.2,
-       'Warn when k_hat >= (1 - margin) k_max (eq. 29 without margin).', 0.0, 1.0),
-    _S('stiffness_regularisation', 'double', 1e-2,
-       'Weight rho of the prior, in samples of a 1 N excursion.', 0.0, 1e6, positive=True),
-    _S('stiffness_force_floor', 'double', 0.01,
-       'Floor of the residual standard deviation in the validity test, N.', 0.0, 1e3,
-       positive=True),
-)
+_POSITIVE = ('k_min', 'k_max', 'k_s0', 'time_constant', 'excitation_window', 'valid_tol',
+             'k_s_rate_down', 'k_s_rate_up', 'regularisation', 'force_floor')
+_NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'change_force',
+                 'force_filter_hz')
 
 
 @dataclass(frozen=True)
 class StiffnessConfig:
-    """Validated settings of :class:`StiffnessEstimator` (symbols of the module docstring).
+    """Validated settings of :class:`StiffnessEstimator` (symbols of the module docstring;
+    the schema names are in ``params.py``, group ``stiffness``).
 
     Attributes
     ----------
-    enabled : k_s follows k_hat (S7); False: :meth:`StiffnessEstimator.k_s_command` holds
-        ``k_hat0`` (the estimate still runs, for diagnostics).
+    enabled : the law uses k_s from (S7) (False: the configured ``k_s0``; the estimate
+        still runs and is reported).
     k_min, k_max : bounds of k_hat, N/m (``0 < k_min < k_max``).
-    k_hat0 : initial k_hat and k_s command, N/m, inside the bounds.
+    k_s0 : the configured k_s of eq. (11), N/m: the design stiffness of lambda2.
+    k_hat0 : prior of k_hat and first k_s command, N/m; 0 means ``k_s0`` (clipped to the
+        bounds), see :attr:`prior`.
     time_constant : T_f of (S3), s; at least 20 control periods, else (S6) never holds.
-    excitation : delta_f of (S5), N.
-    excitation_window : T_e of (S5), s.
+    excitation, excitation_window : delta_f (N) and T_e (s) of (S5).
     valid_tol : tol of (S6).
     k_s_time_constant : T_s of (S7), s (0: no lag, rate limits only).
     k_s_rate_down, k_s_rate_up : rate limits of (S7), 1/s.
     k_max_margin : margin of (S8).
-    regularisation : rho of (S3)-(S4).
-    force_floor : sigma_floor of (S6), N.
-    force_filter_hz : cut-off of the caller's first-order force filter, Hz (0: none); x_n
-        is filtered alike (S0).
+    change_force : delta_c of (S9), N (0: no change test).
+    regularisation : rho of (S3)-(S4); force_floor : sigma floor of (S6), N.
+    force_filter_hz : cut-off of the caller's force filter, Hz (0: none), for (S0).
     """
 
-    enabled: bool = False
+    enabled: bool = True
     k_min: float = 50.0
     k_max: float = 6000.0
-    k_hat0: float = 6000.0
+    k_s0: float = 6000.0
+    k_hat0: float = 0.0
     time_constant: float = 2.0
     excitation: float = 0.05
     excitation_window: float = 0.2
@@ -165,6 +120,7 @@ class StiffnessConfig:
     k_s_rate_down: float = 10.0
     k_s_rate_up: float = 20.0
     k_max_margin: float = 0.2
+    change_force: float = 0.2
     regularisation: float = 1e-2
     force_floor: float = 0.01
     force_filter_hz: float = 200.0
@@ -179,71 +135,31 @@ class StiffnessConfig:
             if not math.isfinite(value):
                 raise StiffnessConfigError(f'{f.name} must be finite, got {value}')
             object.__setattr__(self, f.name, float(value))
-        positive = ('k_min', 'k_max', 'time_constant', 'excitation_window', 'valid_tol',
-                    'k_s_rate_down', 'k_s_rate_up', 'regularisation', 'force_floor')
-        for name in positive:
+        for name in _POSITIVE:
             if not getattr(self, name) > 0.0:
                 raise StiffnessConfigError(f'{name} must be > 0, got {getattr(self, name):g}')
-        for name in ('excitation', 'k_s_time_constant', 'force_filter_hz'):
+        for name in _NON_NEGATIVE:
             if getattr(self, name) < 0.0:
                 raise StiffnessConfigError(f'{name} must be >= 0, got {getattr(self, name):g}')
         if not self.k_min < self.k_max:
             raise StiffnessConfigError(
                 f'need k_min < k_max, got k_min = {self.k_min:g}, k_max = {self.k_max:g}')
-        if not self.k_min <= self.k_hat0 <= self.k_max:
+        if self.k_hat0 != 0.0 and not self.k_min <= self.k_hat0 <= self.k_max:
             raise StiffnessConfigError(f'k_hat0 = {self.k_hat0:g} is outside '
                                        f'[k_min, k_max] = [{self.k_min:g}, {self.k_max:g}]')
         if not 0.0 <= self.k_max_margin < 1.0 or not self.valid_tol < 1.0:
             raise StiffnessConfigError('k_max_margin must be in [0, 1) and valid_tol in (0, 1)')
 
-
-def stiffness_config_from_values(values: Mapping[str, Any], *, k_max: float, k_s: float,
-                                 force_filter_hz: float) -> StiffnessConfig:
-    """Build the config from :data:`STIFFNESS_SCHEMA` names (defaults for missing ones).
-
-    ``k_max``, ``k_s`` and ``force_filter_hz`` are the controller's existing parameters;
-    ``stiffness_k_hat0 = 0`` means ``k_s``. Raises :class:`StiffnessConfigError` on unknown
-    names and bad values.
-    """
-    specs = {s.name: s for s in STIFFNESS_SCHEMA}
-    unknown = set(values) - set(specs)
-    if unknown:
-        raise StiffnessConfigError(f'unknown stiffness parameters: {sorted(unknown)}')
-    v = {name: values.get(name, spec.default) for name, spec in specs.items()}
-    for name, spec in specs.items():
-        x = v[name]
-        if spec.kind == 'double' and isinstance(x, (int, float)) and not isinstance(x, bool):
-            if (spec.lo is not None and x < spec.lo) or (spec.hi is not None and x > spec.hi):
-                raise StiffnessConfigError(f'{name} = {x:g} is outside [{spec.lo:g}, {spec.hi:g}]')
-    k_hat0 = v['stiffness_k_hat0'] or k_s
-    return StiffnessConfig(
-        enabled=v['stiffness_estimation'], k_min=v['k_min'], k_max=k_max, k_hat0=k_hat0,
-        time_constant=v['stiffness_time_constant'], excitation=v['stiffness_excitation'],
-        excitation_window=v['stiffness_excitation_window'],
-        valid_tol=v['stiffness_valid_tol'], k_s_time_constant=v['stiffness_k_s_time_constant'],
-        k_s_rate_down=v['stiffness_k_s_rate_down'], k_s_rate_up=v['stiffness_k_s_rate_up'],
-        k_max_margin=v['stiffness_k_max_margin'], regularisation=v['stiffness_regularisation'],
-        force_floor=v['stiffness_force_floor'], force_filter_hz=force_filter_hz)
-
-
-class StiffnessStatus(NamedTuple):
-    """What /diagnostics and the run report need (N/m unless stated)."""
-
-    k_hat: float
-    k_hat_std: float
-    valid: bool
-    near_k_max: bool
-    k_s: float
-    saturated: bool
-    excited: bool
-    samples_used: int
-    samples_rejected: int
+    @property
+    def prior(self) -> float:
+        """The prior of k_hat, N/m: ``k_hat0``, or ``k_s0`` clipped to the bounds if 0."""
+        return self.k_hat0 or min(max(self.k_s0, self.k_min), self.k_max)
 
 
 class StiffnessEstimator:
-    """Recursive estimate of the surface stiffness, eqs. (S1)-(S8) of the module docstring.
+    """Recursive estimate of the surface stiffness, eqs. (S0)-(S8) of the module docstring.
 
-    Call :meth:`update` once per control tick with the filtered normal force and the tool
+    Call :meth:`update` once per new state with the filtered normal force and the tool
     position along ``n``, then :meth:`k_s_command` for the value to use as k_s.
     """
 
@@ -256,23 +172,24 @@ class StiffnessEstimator:
 
     # ------------------------------------------------------------------ state
     def reset(self, k_hat0: float | None = None) -> None:
-        """Forget all data; restart from ``k_hat0`` (default: the config's) for k_hat and k_s."""
-        c = self.config
-        k0 = c.k_hat0 if k_hat0 is None else float(k_hat0)
-        self.forget_data(k0)
+        """Forget all data; restart from ``k_hat0`` (default: the config's prior) for
+        k_hat and k_s."""
+        k0 = self.config.prior if k_hat0 is None else float(k_hat0)
         self._x_f: float | None = None  # x_n through the force filter (S0)
+        self.forget_data(k0)
         self._k_s = k0
         self.k_s_log_rate = 0.0  # d ln k_s / dt of the last k_s_command (for rdot)
         self.excited = False
         self.excitation_n = 0.0  # k_e |x_n - x_bar| of the last in-contact sample (S5), N
-        self.samples_used = self.samples_rejected = 0
+        self.samples_used = self.samples_rejected = self.restarts = self.changes = 0
 
-    def forget_data(self, k_prior: float | None = None) -> None:
+    def forget_data(self, k_prior: float | None = None, *, restart_filter: bool = False) -> None:
         """Restart the regression (S2)-(S6) from the prior ``k_prior`` (default: the current
-        k_hat); the k_s command, the filter (S0) and the counters are kept.
+        k_hat); the k_s command, the counters and (unless ``restart_filter``, for a new
+        normal) the filter (S0) are kept.
 
-        For a new contact after a loss, when the surface may have changed: the information
-        of a long loading otherwise outweighs a new surface for several ``T_f``.
+        For a new contact, when the surface may have changed: the information of a long
+        loading otherwise outweighs a new surface for several ``T_f``.
         """
         c = self.config
         k0 = self.k_hat if k_prior is None else float(k_prior)
@@ -284,8 +201,41 @@ class StiffnessEstimator:
         self._r_uu, self._r_ub, self._r_bb = rho, 0.0, rho  # R of (S3), symmetric
         self._x_ref: float | None = None
         self._x_bar = 0.0
+        if restart_filter:
+            self._x_f = None
+        self._cusum = 0.0  # S of (S9), N s
         self.saturated = False  # the projection onto [k_min, k_max] was active (S6)
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
+
+    def restart(self) -> None:
+        """The surface is unknown again (contact lost, or a change (S9)): the fit restarts
+        from the prior, the k_s command jumps to ``max(k_s, k_s0)``."""
+        self.forget_data(self.config.prior)
+        self._k_s, self.k_s_log_rate = max(self._k_s, self.config.k_s0), 0.0
+        self.restarts += 1
+
+    def reconfigure(self, config: StiffnessConfig) -> None:
+        """Install new settings, keeping the estimate where they allow it.
+
+        A new prior (``k_hat0``), new bounds or a new ``k_max`` restart the regression
+        from the current k_hat (clipped; the prior if ``k_hat0`` changed); every other
+        setting applies from the next sample on. The k_s command is kept.
+        """
+        if not isinstance(config, StiffnessConfig):
+            raise StiffnessConfigError(f'expected a StiffnessConfig, got {type(config).__name__}')
+        old, k_hat = self.config, self.k_hat
+        self.config, self._dt_cache = config, (-1.0, 0.0, 0.0, 0.0)
+        if config.k_hat0 != old.k_hat0:
+            self.forget_data(config.prior)
+        elif (config.k_min, config.k_max) != (old.k_min, old.k_max):
+            self.forget_data(min(max(k_hat, config.k_min), config.k_max))
+
+    def set_k_s_command(self, k_s: float) -> None:
+        """Restart the k_s command (S7) from ``k_s``, N/m (e.g. the k_s in use when the
+        estimate is switched on)."""
+        if not (isinstance(k_s, (int, float)) and math.isfinite(k_s) and k_s > 0.0):
+            raise StiffnessError(f'k_s must be finite and > 0, got {k_s!r}')
+        self._k_s, self.k_s_log_rate = float(k_s), 0.0
 
     @property
     def k_hat(self) -> float:
@@ -302,7 +252,7 @@ class StiffnessEstimator:
     @property
     def valid(self) -> bool:
         """(S6): enough exciting samples, a small relative standard deviation, not at a bound."""
-        return (self._w >= _MIN_SAMPLES and not self.saturated
+        return (self._w >= MIN_SAMPLES and not self.saturated
                 and self.k_hat_std <= self.config.valid_tol * self.k_hat)
 
     @property
@@ -314,12 +264,6 @@ class StiffnessEstimator:
     def k_s(self) -> float:
         """The last k_s command, N/m."""
         return self._k_s
-
-    def status(self) -> StiffnessStatus:
-        """Snapshot for diagnostics and logs."""
-        return StiffnessStatus(self.k_hat, self.k_hat_std, self.valid, self.near_k_max,
-                               self._k_s, self.saturated, self.excited, self.samples_used,
-                               self.samples_rejected)
 
     # ------------------------------------------------------------------ update
     def _factors(self, dt: float) -> tuple[float, float, float, float]:
@@ -362,6 +306,9 @@ class StiffnessEstimator:
         x_n = self._x_f
         if not in_contact:
             return self.k_hat
+        if self._x_ref is not None and self._changed(f_n, x_n, dt):
+            self.changes += 1
+            self.restart()
         if self._x_ref is None:  # first contact: local origin and prior of b (S2)
             self._x_ref = self._x_bar = x_n
             self._b = self._b0 = f_n
@@ -375,6 +322,16 @@ class StiffnessEstimator:
         self.samples_used += 1
         self._rls_step(self.config.k_max * (x_n - self._x_ref), f_n, lam)
         return self.k_hat
+
+    def _changed(self, f_n: float, x_n: float, dt: float) -> bool:
+        """(S9) on one in-contact sample; only a valid estimate is tested."""
+        c = self.config
+        if c.change_force == 0.0 or not self.valid:
+            self._cusum = 0.0
+            return False
+        eps = f_n - (c.k_max * (x_n - self._x_ref) * self._kappa + self._b)
+        self._cusum = max(0.0, self._cusum + (abs(eps) - c.change_force) * dt)
+        return self._cusum > c.change_force * CHANGE_TIME
 
     def _rls_step(self, u: float, f_n: float, lam: float) -> None:
         """(S3), (S4), the projection onto the bounds and the residual statistics (S6)."""
@@ -402,14 +359,21 @@ class StiffnessEstimator:
 
     # ------------------------------------------------------------------ k_s
     def k_s_command(self, dt: float) -> float:
-        """Advance and return the k_s command (S7), N/m: down to a valid k_hat, up to any."""
+        """Advance and return the k_s command (S7), N/m: down to a valid k_hat, up to any
+        (a command outside ``[k_min, k_max]``, e.g. after new bounds, moves into them).
+        Disabled: held."""
         self._factors(dt)
         c = self.config
-        k_hat = self.k_hat
-        target = k_hat if c.enabled and (k_hat > self._k_s or self.valid) else self._k_s
-        gap = math.log(target / self._k_s)
+        k_hat, k_s = self.k_hat, self._k_s
+        if not c.enabled:
+            target = k_s
+        elif k_hat > k_s or self.valid:
+            target = k_hat
+        else:
+            target = min(max(k_s, c.k_min), c.k_max)
+        gap = math.log(target / k_s)
         step = gap if c.k_s_time_constant == 0.0 else gap * -math.expm1(-dt / c.k_s_time_constant)
         step = min(max(step, -c.k_s_rate_down * dt), c.k_s_rate_up * dt)
-        self._k_s *= math.exp(step)
+        self._k_s = k_s * math.exp(step)
         self.k_s_log_rate = step / dt
         return self._k_s

@@ -14,12 +14,13 @@ from typing import Any
 import numpy as np
 
 __all__ = ['AnalysisError', 'METRIC_KEYS', 'RunLog', 'align', 'compute_metrics',
-           'contact_lost_time', 'normal_force_error', 'surface_axis', 'tangential_error']
+           'contact_lost_time', 'json_safe', 'normal_force_error', 'surface_axis',
+           'tangential_error']
 
 METRIC_KEYS = ('rms_position_error_m', 'max_position_error_m', 'rms_force_error_n',
                'max_force_error_n', 'contact_lost_s', 'contact_lost_window_s',
                'theta_hat_final', 'wall_time_s',
-               'sim_time_s')
+               'sim_time_s', 'stiffness_estimate_n_per_m')
 
 _UNIT_TOL = 1e-6
 
@@ -74,6 +75,11 @@ class RunLog:
         True parameters when known (simulation).
     f_true_W : numpy.ndarray, shape (N, 3), optional
         Noise-free contact force when known (simulation with a noisy sensor).
+    k_hat : numpy.ndarray, shape (N,), optional
+        The controller's online stiffness estimate [N/m]; NaN where it was unknown (not
+        yet valid). None when the run did not record it.
+    k_true : float, optional
+        The surface's true stiffness [N/m] when known (simulation).
     """
 
     t: np.ndarray
@@ -87,6 +93,8 @@ class RunLog:
     in_contact: np.ndarray
     theta_true: np.ndarray | None = None
     f_true_W: np.ndarray | None = None
+    k_hat: np.ndarray | None = None
+    k_true: float | None = None
 
     @classmethod
     def from_result(cls, result: Any) -> 'RunLog':
@@ -94,7 +102,8 @@ class RunLog:
         return cls(t=result.t, x_W=result.x_W, x_d_W=result.x_d_W, f_W=result.f_W,
                    f_d_W=result.f_d_W, n_W=result.n_W, theta_hat=result.theta_hat,
                    theta_names=result.theta_names, in_contact=result.in_contact,
-                   theta_true=result.theta_true, f_true_W=result.f_true_W)
+                   theta_true=result.theta_true, f_true_W=result.f_true_W,
+                   k_hat=getattr(result, 'k_hat', None), k_true=getattr(result, 'k_true', None))
 
     def __post_init__(self) -> None:
         """Copy every field to a read-only float/bool array; validate shapes and values."""
@@ -138,7 +147,27 @@ def _validated_fields(log: RunLog) -> dict[str, Any]:
         'theta_true', log.theta_true, (p,))
     out['f_true_W'] = None if log.f_true_W is None else _as_array(
         'f_true_W', log.f_true_W, (n, 3))
+    out['k_hat'] = None if log.k_hat is None else _estimate(log.k_hat, n)
+    if log.k_true is not None:
+        out['k_true'] = float(_as_array('k_true', log.k_true, ()))
+        if not out['k_true'] > 0.0:
+            raise AnalysisError(f'k_true: must be > 0, got {out["k_true"]}')
     return out
+
+
+def _estimate(value: Any, n: int) -> np.ndarray:
+    """The stiffness estimate: (N,) floats, NaN (unknown) allowed, finite ones > 0."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise AnalysisError(f'k_hat: not numeric ({exc})') from None
+    if arr.shape != (n,):
+        raise AnalysisError(f'k_hat: expected shape ({n},), got {arr.shape}')
+    known = arr[~np.isnan(arr)]
+    if not np.all(np.isfinite(known) & (known > 0.0)):
+        raise AnalysisError('k_hat: values must be NaN (unknown) or finite and > 0')
+    arr.flags.writeable = False
+    return arr
 
 
 def align(t_query: np.ndarray, t_src: np.ndarray, y_src: np.ndarray) -> np.ndarray:
@@ -253,7 +282,10 @@ def compute_metrics(log: RunLog, t_start: float = 5.0,
         normal force error [N], ``contact_lost_s`` over the whole run and
         ``contact_lost_window_s`` over ``t >= t_start`` (after the first contact), final
         ``theta_hat``
-        as a list, ``wall_time_s`` and ``sim_time_s = t[-1] - t[0]``.
+        as a list, ``wall_time_s``, ``sim_time_s = t[-1] - t[0]`` and
+        ``stiffness_estimate_n_per_m``, the stiffness estimate at the last sample [N/m]:
+        NaN when the run did not record it or it was unknown at the end (the report
+        writes NaN as ``null``).
 
     Raises
     ------
@@ -280,4 +312,16 @@ def compute_metrics(log: RunLog, t_start: float = 5.0,
         'theta_hat_final': [float(v) for v in log.theta_hat[-1]],
         'wall_time_s': float(wall_time_s),
         'sim_time_s': float(log.t[-1] - log.t[0]),
+        'stiffness_estimate_n_per_m': math.nan if log.k_hat is None else float(log.k_hat[-1]),
     }
+
+
+def json_safe(value: Any) -> Any:
+    """Replace NaN/inf floats (not valid JSON) by ``None``, recursively."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, list):
+        return [json_safe(v) for v in value]
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    return value

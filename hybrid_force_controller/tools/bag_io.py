@@ -4,6 +4,10 @@
 :class:`~hybrid_force_controller.tools.analysis.RunLog`; :class:`BagWriter` writes an MCAP bag
 with rosbag2 metadata version 8. Jazzy's rosbag2 (0.26) writes version 9 and reads both;
 version 8 is kept for older readers (Humble-era tools).
+
+Optional topics (a bag without them loads): ``/sim/contact_wrench`` (the true force) and
+``~/stiffness_estimate`` (``std_msgs/Float64``, the online stiffness estimate, NaN while
+unknown).
 """
 from __future__ import annotations
 
@@ -26,7 +30,7 @@ from .analysis import AnalysisError, RunLog, align
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
            'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
-           'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED', 'TOPIC_X',
+           'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED', 'TOPIC_X',
            'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
 TOPIC_X = '/hybrid_force_controller/x'
@@ -40,6 +44,7 @@ TOPIC_FT_WRENCH = '/force_torque_sensor_broadcaster/wrench'
 TOPIC_EFFORT_COMMANDS = '/effort_controller/commands'
 TOPIC_DIAGNOSTICS = '/diagnostics'
 TOPIC_CONTACT_WRENCH = '/sim/contact_wrench'
+TOPIC_STIFFNESS_ESTIMATE = '/hybrid_force_controller/stiffness_estimate'
 
 _POINT = 'geometry_msgs/msg/PointStamped'
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
@@ -57,6 +62,7 @@ RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_EFFORT_COMMANDS, _ARRAY),
     (TOPIC_DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
     (TOPIC_CONTACT_WRENCH, _WRENCH),
+    (TOPIC_STIFFNESS_ESTIMATE, 'std_msgs/msg/Float64'),
 ]
 REQUIRED_TOPICS = (TOPIC_X, TOPIC_X_DESIRED, TOPIC_WRENCH, TOPIC_WRENCH_DESIRED,
                    TOPIC_THETA_HAT)
@@ -193,6 +199,8 @@ def _value(topic: str, msg: Any) -> Any:
     """The numbers :func:`load_run` needs from one message."""
     if topic in (TOPIC_X, TOPIC_X_DESIRED):
         return (msg.point.x, msg.point.y, msg.point.z)
+    if topic == TOPIC_STIFFNESS_ESTIMATE:
+        return float(msg.data)
     if topic == TOPIC_THETA_HAT:
         label = msg.layout.dim[0].label if len(msg.layout.dim) else ''
         return np.array(msg.data, dtype=float), label
@@ -208,7 +216,7 @@ def _read_series(bag_path: Path) -> dict[str, _Series]:
     BagError
         Unreadable or empty bag, or a required topic absent.
     """
-    wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH)
+    wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE)
     try:
         with AnyReader([bag_path], default_typestore=TYPESTORE) as reader:
             if reader.message_count == 0 or not reader.connections:
@@ -276,6 +284,18 @@ def _theta(series: _Series, x: _Series, bag_path: Path) -> tuple[np.ndarray, tup
     return _on_x_time(stacked, x), names
 
 
+def _stiffness(series: _Series | None, x: _Series) -> np.ndarray | None:
+    """The stiffness estimate on the position samples (NaN before its first message);
+    None when the bag has no message on the topic."""
+    if series is None or not series.values:
+        return None
+    k_hat = _on_x_time(series, x)
+    first_ns = min(series.stamp_ns if series.has_header else series.log_ns)
+    query_ns = np.asarray(x.stamp_ns if series.has_header else x.log_ns, dtype=np.int64)
+    k_hat[query_ns < first_ns] = np.nan
+    return k_hat
+
+
 def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
     """Unit normal from the largest desired force sample."""
     norms = np.linalg.norm(f_d_W, axis=1)
@@ -298,6 +318,7 @@ def load_run(bag_path: str | Path,
         Contact is the core predicate (``core.contact.in_contact``) on ``n^T f`` with this
         minimum force, ``f`` the true contact force (``/sim/contact_wrench``) when
         recorded, else the measured one; the offline ``paper`` run uses the same test.
+        ``k_hat`` is the recorded stiffness estimate (None without the topic).
 
     Returns
     -------
@@ -329,6 +350,7 @@ def load_run(bag_path: str | Path,
                       n_W=n_W, theta_hat=theta_hat, theta_names=names,
                       in_contact=np.array([in_contact(f, minimum=contact_threshold_n)
                                            for f in f_contact_n], dtype=bool),
-                      f_true_W=f_true_W)
+                      f_true_W=f_true_W,
+                      k_hat=_stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x))
     except AnalysisError as exc:
         raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

@@ -1,4 +1,5 @@
-"""Figures 3-5 of the paper from a :class:`~hybrid_force_controller.tools.analysis.RunLog`.
+"""Figures 3-5 of the paper from a :class:`~hybrid_force_controller.tools.analysis.RunLog`,
+and the online stiffness estimate (``fig6_stiffness.png``) when the run recorded it.
 
 Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
 """
@@ -12,9 +13,11 @@ from matplotlib.figure import Figure
 
 from .analysis import RunLog, surface_axis, tangential_error
 
-__all__ = ['FIGURE_NAMES', 'write_figures']
+__all__ = ['FIGURE_NAMES', 'STIFFNESS_FIGURE', 'write_figures']
 
 FIGURE_NAMES = ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png')
+STIFFNESS_FIGURE = 'fig6_stiffness.png'
+
 _FIGSIZE = (7.0, 4.0)
 _DPI = 90
 _AXIS_NAMES = 'xyz'
@@ -96,8 +99,25 @@ def _plot_parameters(log: RunLog, path: Path) -> Path:
     return _finish(fig, ax, path, 'theta_hat', 'Estimation of unknown dynamic parameters')
 
 
+def _plot_stiffness(log: RunLog, path: Path) -> Path:
+    """The online stiffness estimate over time (gaps where unknown), the true k dashed
+    with a +-10 % band."""
+    fig, (ax,) = _new_figure(1)
+    known = ~np.isnan(log.k_hat)
+    ax.plot(log.t, log.k_hat, label='estimate k_hat' if known.any() else 'estimate (unknown)')
+    if log.k_true is not None:
+        ax.axhline(log.k_true, ls='--', color='black', label='true k')
+        ax.axhspan(0.9 * log.k_true, 1.1 * log.k_true, color='black', alpha=0.08,
+                   label='true k +- 10 %')
+    if known.any():
+        ax.plot(log.t[known][0], log.k_hat[known][0], 'o', color='tab:blue',
+                label=f'first valid, t = {log.t[known][0]:.2f} s')
+    return _finish(fig, ax, path, 'k [N/m]', 'Online estimate of the surface stiffness')
+
+
 def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
-    """Write ``fig3_position.png``, ``fig4_force.png`` and ``fig5_parameters.png``.
+    """Write ``fig3_position.png``, ``fig4_force.png`` and ``fig5_parameters.png``, and
+    ``fig6_stiffness.png`` when the log holds the stiffness estimate (``log.k_hat``).
 
     Parameters
     ----------
@@ -109,9 +129,12 @@ def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
     Returns
     -------
     list of pathlib.Path
-        The three PNG files, in figure order.
+        The PNG files, in figure order.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     writers = (_plot_position, _plot_force, _plot_parameters)
-    return [write(log, out / name) for write, name in zip(writers, FIGURE_NAMES)]
+    paths = [write(log, out / name) for write, name in zip(writers, FIGURE_NAMES)]
+    if log.k_hat is not None:
+        paths.append(_plot_stiffness(log, out / STIFFNESS_FIGURE))
+    return paths

@@ -1,18 +1,23 @@
 """``report BAG --out DIR``: metrics and Figs. 3-5 of a recorded controller run.
 
-Writes ``metrics.json`` (non-finite numbers such as an unknown wall time become ``null``)
-and three PNGs to ``DIR``. Exit code 0 on success, 2 on an unreadable bag or invalid run.
+Writes ``metrics.json`` (non-finite numbers such as an unknown wall time become ``null``;
+``stiffness_estimate_n_per_m`` is the last recorded stiffness estimate, ``null`` when the
+bag has no ``~/stiffness_estimate`` or it was unknown at the end) and three PNGs to
+``DIR``, plus ``fig6_stiffness.png`` when the estimate was recorded (``--k-true``: the
+surface's true stiffness, drawn for comparison). Exit code 0 on success, 2 on an
+unreadable bag or invalid run.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
-from .analysis import AnalysisError, compute_metrics
+from .analysis import AnalysisError, compute_metrics, json_safe
 from .bag_io import BagError, load_run
 from .plots import write_figures
 
@@ -31,18 +36,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='normal force [N] above which the tool is in contact')
     parser.add_argument('--wall-time', type=float, default=float('nan'),
                         help='wall-clock duration of the run [s], copied to metrics.json')
+    parser.add_argument('--k-true', type=float, default=None,
+                        help='true surface stiffness [N/m], drawn in fig6_stiffness.png')
     return parser
-
-
-def _json_safe(value: Any) -> Any:
-    """Replace NaN/inf floats (not valid JSON) by ``None``, recursively."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, list):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -62,6 +58,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         log = load_run(args.bag, contact_threshold_n=args.contact_threshold)
+        if args.k_true is not None:
+            log = dataclasses.replace(log, k_true=args.k_true)
         metrics = compute_metrics(log, t_start=args.t_start, wall_time_s=args.wall_time)
     except (BagError, AnalysisError) as exc:
         print(f'error: {exc}', file=sys.stderr)
@@ -69,7 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     metrics_path = args.out / 'metrics.json'
     try:
         figures = write_figures(log, args.out)
-        metrics_path.write_text(json.dumps(_json_safe(metrics), indent=2) + '\n')
+        metrics_path.write_text(json.dumps(json_safe(metrics), indent=2) + '\n')
     except OSError as exc:
         print(f'error: cannot write to {args.out}: {exc}', file=sys.stderr)
         return 2

@@ -218,7 +218,7 @@ def test_step_adapts_with_k_a_times_e(model):
     """The update in step() is (26) on k_a e: theta - dt Gamma^-1 Y_x^T (k_a e).
 
     A short dt keeps the step inside the projection box."""
-    ctrl = make_ctrl(model, gamma=[70.0, 50.0], k_a=3000.0)
+    ctrl = make_ctrl(model, gamma=[70.0, 50.0], k_a=3000.0, adapt_error_limit=1e3)
     p = ctrl.gains
     q, qdot = Q0 + 0.05, np.array([0.3, -0.1])
     f_W = np.array([0.0, -1.2, 0.0])
@@ -234,6 +234,22 @@ def test_step_adapts_with_k_a_times_e(model):
     assert np.all((expected > p.theta_min) & (expected < p.theta_max))
     assert np.abs(expected - theta0).min() > 1e-3  # a visible step
     np.testing.assert_allclose(out.theta_hat, expected, rtol=1e-9, atol=1e-12)
+
+
+def test_adaptation_integrates_a_saturated_error(model):
+    """|e| above adapt_error_limit: the update keeps its direction, its size is that of an
+    error of norm adapt_error_limit (a transient cannot throw theta_hat)."""
+    q, qdot = Q0 + 0.05, np.array([0.3, -0.1])
+    f_W, dt = np.array([0.0, -1.2, 0.0]), 1e-5
+    steps = {}
+    for limit in (1e3, 0.01):
+        ctrl = make_ctrl(model, adapt_error_limit=limit)
+        theta0 = ctrl.theta_hat.copy()
+        out = ctrl.step(q, qdot, f_W, sine_ref(ctrl.full, 0.5), dt)
+        steps[limit] = (out.theta_hat - theta0, float(np.linalg.norm(out.e)))
+    (free, e_norm), (saturated, _) = steps[1e3], steps[0.01]
+    assert e_norm > 0.01
+    np.testing.assert_allclose(saturated, free * (0.01 / e_norm), rtol=1e-9)
 
 
 # ---------------------------------------------------------------- output limits

@@ -122,7 +122,8 @@ def rig(tmp_path_factory):
         w.procs = procs
         for p in procs:
             p.start()
-        wait_for(lambda: w.now > 0.0, 'the loop to run', alive=procs)
+        wait_for(lambda: w.now > 0.0 and bool(w.statuses(0.0, math.inf)),
+                 'the loop to run and report', alive=procs)
         yield w
     finally:
         for p in procs:

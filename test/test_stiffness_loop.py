@@ -42,7 +42,7 @@ def r_normal(ctrl: HybridForceController, f_n: float) -> tuple[float, float]:
     """Normal parts of r and rdot at the paper pose for a normal force f_n (N)."""
     kin = ctrl.model.kinematics(Q0, QDOT)
     ref = SineReference(np.array([1.0, 1.6, 0.0]), np.array([0.1, 0.0, 0.0]), 1.0)(0.3)
-    r, rdot, _, _ = ctrl.reference_velocity(kin, ref, (f_n * N_W)[ctrl.model.task_index])
+    r, rdot = ctrl.reference_velocity(kin, ref, (f_n * N_W)[ctrl.model.task_index])[:2]
     n = N_W[list(ctrl.model.task_axes)]
     return float(n @ r), float(n @ rdot)
 

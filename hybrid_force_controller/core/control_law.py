@@ -40,7 +40,12 @@ the varying compliance, ``-cdot lambda1 df_n n`` with ``cdot = -c d(ln k_s)/dt``
 Approach. Out of contact the runtime may replace the force loop along n by a position
 reference moving toward the surface (``ApproachRef``): the normal part of r becomes
 ``v_n - lambda1 (n^T x - x_n)``, the same first-order tracking the tangential part uses.
-Meanwhile (26) adapts on the tangential part of e only: the normal error then measures
+(26) integrates e saturated to ``adapt_error_limit`` (0.1 m/s): tracking errors of a wrong
+model are millimetres per second, while an impact or a jump of the surface stiffness
+(with the force loop's compliance c = 1/k_s set for the old surface) makes e metres per
+second for a few ticks and threw theta_hat to 2.7 times the truth; the saturation keeps
+the direction of each update and bounds its size. Meanwhile an approach adapts on the
+tangential part of e only: the normal error then measures
 how far the lag-limited approach reference leads the tool, not a model error, and
 adapting on it swung theta_hat past the truth (6 N impacts with the masses 50 % high).
 
@@ -290,6 +295,9 @@ class HybridForceController:
         if dt > 0.0:
             if approach is not None:  # adapt on the motion along the surface only
                 s = J_pinv @ (e - d.n * float(d.n @ e))
+            e_norm = math.sqrt(float(e @ e))
+            if e_norm > g.adapt_error_limit:  # a transient, not a model error (docstring)
+                s = s * (g.adapt_error_limit / e_norm)
             self._integrate(Y_q, s, df_n, dt, in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
 

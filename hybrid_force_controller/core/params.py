@@ -80,6 +80,9 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _law('k_a', 'double', 1500.0,
          'Stiffness converting e to the force-rate units of the adaptation (26), N/m.',
          0.0, 1e8, positive=True),
+    _law('adapt_error_limit', 'double', 0.1,
+         'The adaptation (26) integrates e saturated to this norm, m/s (transients such as '
+         'impacts do not throw theta_hat).', 0.0, 1e3, positive=True),
     _law('theta_hat0', 'double_array', [],
          'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',
          read_only=True),
@@ -194,6 +197,7 @@ class LawGains:
     k_max: float
     k_s: float
     k_a: float
+    adapt_error_limit: float
     theta_hat0: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
@@ -350,7 +354,8 @@ def _law_gains(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> LawG
         lambda1=s['lambda1'], lambda2=s['lambda2'],
         Gamma=_gamma(v['gamma'], len(model.theta_nominal)),
         n=_normal(v['n'], model.task_axes), f_d=s['f_d'], k_d=s['k_d'], k_null=s['k_null'],
-        k_max=s['k_max'], k_s=s['k_s'], k_a=s['k_a'], theta_hat0=theta0, theta_min=lo,
+        k_max=s['k_max'], k_s=s['k_s'], k_a=s['k_a'],
+        adapt_error_limit=s['adapt_error_limit'], theta_hat0=theta0, theta_min=lo,
         theta_max=hi, integral_limit=s['integral_limit'])
 
 

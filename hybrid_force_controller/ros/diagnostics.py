@@ -37,6 +37,10 @@ def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
     if math.isfinite(delay_ms) and delay_ms + 1.0 > 0.5 * margin_ms:  # +1 ms: plant side
         out.append(f'loop delay p99 {delay_ms:.1f} ms leaves less than half of the gains\' '
                    f'delay margin {margin_ms:.1f} ms')
+    k = runtime.stiffness_status()
+    if k.enabled and k.near_k_max:
+        out.append(f'stiffness estimate {k.k_hat:.0f} N/m near k_max: eq. (29) holds with '
+                   'little margin')
     out.extend(str(w) for w in extra.get('warnings', ()))
     return out
 
@@ -72,7 +76,9 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
         values = {'mode': runtime.mode.value, 'in_contact': runtime.in_contact,
                   **runtime.counters, 'last_input_fault': runtime.last_fault,
                   'last_safe_reason': runtime.last_safe_reason,
-                  'theta_hat': ', '.join(f'{v:.4g}' for v in runtime.theta_hat)}
+                  'theta_hat': ', '.join(f'{v:.4g}' for v in runtime.theta_hat),
+                  **{f'stiffness_{k}': (f'{v:.4g}' if isinstance(v, float) else v)
+                     for k, v in runtime.stiffness_status()._asdict().items()}}
     values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
                    for k, v in timing.items()})
     values.update({f'callback_errors_{k}': v for k, v in callback_errors.items()})

@@ -3,8 +3,9 @@ The controller's outgoing messages, built once and refilled in place every tick.
 
 :class:`ControllerOutputs` owns the effort publisher (every tick) and the telemetry
 publishers (``~/x``, ``~/x_desired``, ``~/wrench``, ``~/wrench_desired``, ``~/error``,
-``~/theta_hat``; every ``decimation``-th tick). The effort and theta_hat data live in
-``array.array('d')`` buffers that numpy views write into, so a tick allocates no message.
+``~/theta_hat``, ``~/stiffness_estimate``; every ``decimation``-th tick). The effort
+and theta_hat data live in ``array.array('d')`` buffers that numpy views write into, so
+a tick allocates no message.
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from typing import Any, Sequence
 
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 import numpy as np
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 from .qos import COMMAND_QOS, DEFAULT_QOS
 
@@ -57,6 +58,9 @@ class ControllerOutputs:
                           for t, m in topics]
         self.telemetry.append((node.create_publisher(Float64MultiArray, '~/theta_hat',
                                                      DEFAULT_QOS), self.theta_msg))
+        self.k_msg = Float64()  # the stiffness estimate, N/m (NaN while unknown)
+        self.telemetry.append((node.create_publisher(Float64, '~/stiffness_estimate',
+                                                     DEFAULT_QOS), self.k_msg))
 
     def publish_effort(self, tau: np.ndarray) -> None:
         """Publish the joint efforts (command order)."""
@@ -71,6 +75,7 @@ class ControllerOutputs:
         for target, v in zip(self.vectors, (out.x_W, out.x_d_W, out.f_W, out.f_d_W, out.e_W)):
             target.x, target.y, target.z = float(v[0]), float(v[1]), float(v[2])
         self.theta_view[:] = out.theta_hat
+        self.k_msg.data = float(out.k_hat)
         for publisher, msg in self.telemetry:
             publisher.publish(msg)
 

@@ -153,8 +153,11 @@ class SimNode(Node):
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
 
     def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None, bool]:
-        """Build the surface the values describe (None when disabled) and the sensor's
-        frozen flag; SurfaceError if not."""
+        """
+        Build the surface the values describe (None when disabled) and the frozen flag.
+
+        The flag is the sensor's (``sensor_frozen``); SurfaceError when a value is bad.
+        """
         if not isinstance(v['stiffness'], float) or not all(
                 isinstance(v[k], bool) for k in ('surface_enabled', 'sensor_frozen')):
             raise SurfaceError('stiffness must be a number, surface_enabled and sensor_frozen '

@@ -39,9 +39,9 @@ from .qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
 from .runner import EXECUTORS, print_help, run_node, wants_help
 from .telemetry import ControllerOutputs
 from ..core.loop_stats import LoopStats
-from ..core.params import CONTROLLER_SCHEMA, MODEL_SCHEMA, ParameterValidationError
+from ..core.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
+from ..core.params import ParameterValidationError
 from ..core.robot_model import RobotModel
-from ..core.params import build_params
 from ..core.runtime import ControllerRuntime, InputError, Mode
 
 __all__ = ['ControllerNode', 'main']

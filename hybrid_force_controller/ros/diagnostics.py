@@ -22,8 +22,12 @@ EVENT_COUNTERS = ('joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
 
 def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
               extra: Mapping[str, object]) -> list[str]:
-    """Reasons to raise an OK status to WARN: events since the last status (dropped
-    inputs, safe mode, contact lost) and a measured delay near the margin."""
+    """
+    List the reasons to raise an OK status to WARN.
+
+    They are events since the last status (dropped inputs, safe mode, contact lost), a
+    measured delay near the delay margin and a stiffness estimate near k_max.
+    """
     out = []
     dropped = sum(new_events.get(k, 0) for k in EVENT_COUNTERS[:3])
     if dropped:
@@ -35,7 +39,7 @@ def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
     margin_ms = float(extra.get('delay_margin_ms', math.inf))
     delay_ms = float(extra.get('delay_p99_ms', math.nan))
     if math.isfinite(delay_ms) and delay_ms + 1.0 > 0.5 * margin_ms:  # +1 ms: plant side
-        out.append(f'loop delay p99 {delay_ms:.1f} ms leaves less than half of the gains\' '
+        out.append(f"loop delay p99 {delay_ms:.1f} ms leaves less than half of the gains' "
                    f'delay margin {margin_ms:.1f} ms')
     k = runtime.stiffness_status()
     if k.enabled and k.near_k_max:

@@ -6,8 +6,10 @@
 subscribed to every topic, plus a process keeping ``--load-duty`` of one core busy). For
 each run it reports the CPU use of each process (% of one core: user + system ticks from
 ``/proc/<pid>/stat`` over the run), the commands per second reaching the plant (counted by
-the sim), and the controller's tick period p50/p99 and input-to-command delay p50/p99/max
-(joint-state stamp to effort published, node clock), read from ``/diagnostics``.
+the sim), the controller's tick period p50/p99 and input-to-command delay p50/p99/max
+(joint-state stamp to effort published, node clock), read from ``/diagnostics``, and the
+tracking over the measured window (RMS position and true-force errors, contact lost:
+ros/tracking.py) with the sim's masses ``--masses`` (default 50 % off the URDF's).
 """
 from __future__ import annotations
 
@@ -22,8 +24,11 @@ import threading
 import time
 from typing import Any, Sequence
 
+import numpy as np
+
 from .launch import find_config, PKG
 from .load import CpuMeter
+from .tracking import TrackingMeter
 from ..tools.offline_bench import offline_figures
 
 __all__ = ['main', 'ros_loop_figures']
@@ -47,6 +52,7 @@ class _Diagnostics:
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('ros_bench', context=self.context)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.tracking = TrackingMeter(self.node, np.array([0.0, -1.0, 0.0]), 1.0)
         self.executor = make_executor('single_threaded', self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
@@ -108,8 +114,20 @@ def _warm_up(diag: _Diagnostics, procs: dict[str, subprocess.Popen]) -> None:
     time.sleep(2.0)  # the first second of running
 
 
+def _freeze(proc: subprocess.Popen, count: int, hold_s: float = 0.03) -> list[float]:
+    """SIGSTOP the process for ``hold_s`` ``count`` times, 1 s apart; wall times of each."""
+    times = []
+    for _ in range(count):
+        time.sleep(1.0)
+        times.append(time.time())
+        proc.send_signal(19)  # SIGSTOP: a scheduler hiccup of hold_s
+        time.sleep(hold_s)
+        proc.send_signal(18)  # SIGCONT
+    return times
+
+
 def _one_run(duration_s: float, load_duty: float, params: list[str], domain: int,
-             log_dir: Path) -> dict[str, float]:
+             log_dir: Path, freezes: int = 0) -> dict[str, float]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ros_args = ['--ros-args', '--params-file', str(find_config()), *params]
@@ -130,8 +148,18 @@ def _one_run(duration_s: float, load_duty: float, params: list[str], domain: int
         sim0 = diag.wait_new('sim', time.monotonic())
         t0 = time.monotonic()
         meter.start()
-        time.sleep(duration_s)
+        t_stamp0, t_wall0 = diag.tracking.latest, time.monotonic()
+        frozen = _freeze(procs['controller'], freezes)
+        time.sleep(max(duration_s - (time.monotonic() - t_wall0), 0.0))
         cpu = meter.stop()
+        t_end = diag.tracking.latest
+        tracking = diag.tracking.figures(t_stamp0, t_end)
+        if freezes:  # the window of the freezes, and the last 6 s (after them)
+            during = diag.tracking.figures(frozen[0] - 0.5, frozen[-1] + 1.0)
+            last = diag.tracking.figures(t_end - 6.0, t_end)
+            tracking.update({'freezes': freezes, 'freeze_max_force_n': during['max_force_n'],
+                             'freeze_contact_lost_s': during['contact_lost_s'],
+                             'last_6s_rms_force_error_n': last['rms_force_error_n']})
         sim1 = diag.wait_new('sim', time.monotonic())
         t1 = time.monotonic()
         ctrl = diag.wait_new(PKG, t1)
@@ -145,17 +173,22 @@ def _one_run(duration_s: float, load_duty: float, params: list[str], domain: int
                 'delay_max_ms', 'commands_per_s'):
         figures[f'controller_{key}'] = float(ctrl.get(key, 'nan'))
     figures['sim_lost_periods'] = int(sim1.get('lost_periods', 0))
+    figures.update({f'tracking_{k}': v for k, v in tracking.items()})
     return figures
 
 
 def ros_loop_figures(duration_s: float = 20.0, load_duty: float = 0.3,
-                     params: Sequence[str] = (), domain: int | None = None
-                     ) -> dict[str, Any]:
-    """Measure the real-time loop alone and under load (recorder + ``load_duty`` of a core)."""
+                     params: Sequence[str] = (), domain: int | None = None,
+                     freezes: int = 0) -> dict[str, Any]:
+    """
+    Measure the real-time loop alone and under load (recorder + ``load_duty`` of a core).
+
+    ``freezes``: SIGSTOP the controller for 30 ms that many times in each run.
+    """
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38')) if domain is None else domain
     with tempfile.TemporaryDirectory(prefix='bench_ros_') as tmp:
-        alone = _one_run(duration_s, 0.0, list(params), domain, Path(tmp))
-        loaded = _one_run(duration_s, load_duty, list(params), domain, Path(tmp))
+        alone = _one_run(duration_s, 0.0, list(params), domain, Path(tmp), freezes)
+        loaded = _one_run(duration_s, load_duty, list(params), domain, Path(tmp), freezes)
     return {'ros_duration_s': duration_s, 'ros_params': list(params), 'ros_alone': alone,
             f'ros_with_recorder_and_{round(100 * load_duty)}pct_load': loaded}
 
@@ -169,13 +202,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help='busy fraction of one core in the loaded run (0-1)')
     ap.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
                     help='extra node parameter for both nodes, e.g. tick_mode:=joint_state')
+    ap.add_argument('--masses', default='[0.65, 1.35]',
+                    help="the sim's link masses (config/params.yaml arm: 1.3, 0.9 kg)")
+    ap.add_argument('--freezes', type=int, default=0,
+                    help='SIGSTOP the controller for 30 ms this many times (1 s apart)')
     ap.add_argument('--no-offline', action='store_true', help='skip the offline figures')
     args = ap.parse_args(argv)
     try:
         figures = {} if args.no_offline else offline_figures()
         if args.ros:
-            params = [a for p in args.param for a in ('-p', p)]
-            figures.update(ros_loop_figures(args.ros_duration, args.load_duty, params))
+            params = [a for p in [f'masses:={args.masses}', *args.param] for a in ('-p', p)]
+            figures.update(ros_loop_figures(args.ros_duration, args.load_duty, params,
+                                            freezes=args.freezes))
     except KeyboardInterrupt:
         print('bench: interrupted', file=sys.stderr)
         return 0

@@ -1,0 +1,76 @@
+"""
+Tracking figures of a running loop, from its topics (for ``bench --ros``).
+
+A :class:`TrackingMeter` subscribes the controller's ``~/x`` and ``~/x_desired`` and the
+sim's ``sim/contact_wrench`` (the true force) and, over a window of stamps, reports the
+RMS tangential position error, the RMS normal force error and the time out of contact
+(the core contact predicate on the true force), like ``report`` does from a bag.
+"""
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any
+
+import numpy as np
+
+from ..core.contact import in_contact
+
+__all__ = ['TrackingMeter']
+
+
+def _t(stamp: Any) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class TrackingMeter:
+    """Collect position, reference and true force samples on ``node`` (any spun node)."""
+
+    def __init__(self, node: Any, n_W: np.ndarray, f_d: float) -> None:
+        from geometry_msgs.msg import PointStamped, WrenchStamped
+        self.n_W, self.f_d = np.asarray(n_W, dtype=float), f_d
+        self.lock = threading.Lock()
+        self.x: dict[float, np.ndarray] = {}
+        self.x_d: dict[float, np.ndarray] = {}
+        self.f: list[tuple[float, float]] = []
+        node.create_subscription(PointStamped, 'hybrid_force_controller/x',
+                                 lambda m: self._point(self.x, m), 1000)
+        node.create_subscription(PointStamped, 'hybrid_force_controller/x_desired',
+                                 lambda m: self._point(self.x_d, m), 1000)
+        node.create_subscription(WrenchStamped, 'sim/contact_wrench', self._on_force, 1000)
+
+    def _point(self, store: dict, msg: Any) -> None:
+        p = msg.point
+        with self.lock:
+            store[_t(msg.header.stamp)] = np.array([p.x, p.y, p.z])
+
+    def _on_force(self, msg: Any) -> None:
+        f = msg.wrench.force
+        with self.lock:
+            self.f.append((_t(msg.header.stamp), float(self.n_W @ [f.x, f.y, f.z])))
+
+    @property
+    def latest(self) -> float:
+        """Stamp of the newest force sample, s (0 before any)."""
+        with self.lock:
+            return self.f[-1][0] if self.f else 0.0
+
+    def figures(self, t0: float, t1: float) -> dict[str, float]:
+        """RMS position (m) and force (N) errors and contact lost (s) over [t0, t1]."""
+        with self.lock:
+            pairs = [(x, self.x_d[t]) for t, x in self.x.items()
+                     if t0 <= t <= t1 and t in self.x_d]
+            forces = [(t, f) for t, f in self.f if t0 <= t <= t1]
+        P_t = np.eye(3) - np.outer(self.n_W, self.n_W)
+        e_x = [P_t @ (x - x_d) for x, x_d in pairs]
+        out = {'rms_position_error_m': math.nan, 'rms_force_error_n': math.nan,
+               'contact_lost_s': math.nan, 'samples': len(forces)}
+        if e_x:
+            out['rms_position_error_m'] = float(np.sqrt(np.mean(np.sum(np.square(e_x), 1))))
+        if len(forces) > 1:
+            t, f = np.array(forces).T
+            out['rms_force_error_n'] = float(np.sqrt(np.mean((f - self.f_d) ** 2)))
+            lost = np.array([not in_contact(v) for v in f[:-1]])
+            out['contact_lost_s'] = float(np.sum(np.diff(t)[lost]))
+            out['max_force_n'] = float(f.max())
+        return out

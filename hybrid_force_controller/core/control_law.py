@@ -256,7 +256,8 @@ class HybridForceController:
 
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
-             r_bias: tuple[float, float] = (0.0, 0.0)) -> ControlOutput:
+             r_bias: tuple[float, float] = (0.0, 0.0),
+             kin: TaskKinematics | None = None) -> ControlOutput:
         """One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
 
         Parameters
@@ -268,6 +269,7 @@ class HybridForceController:
         in_contact : the runtime's contact state (anti-windup of h).
         approach : normal reference of an approach (None: the force loop).
         r_bias : added to the normal part of r and rdot in the force loop (m/s, m/s^2).
+        kin : ``model.kinematics(q, qdot)`` when the caller has it already.
 
         Returns ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e)`` (eq. 5 in joint space).
         """
@@ -275,7 +277,7 @@ class HybridForceController:
             raise ControlError(f'dt must be finite and >= 0, got {dt}')
         d = self._d
         g, model = d.gains, self.model
-        kin = model.kinematics(q, qdot)
+        kin = model.kinematics(q, qdot) if kin is None else kin
         f = f_W[model.task_index]
         r, rdot, df_n, r_n, rdot_n = self.reference_velocity(kin, ref, f, approach, r_bias)
         e = kin.xdot - r

@@ -88,35 +88,41 @@ class WrenchGate:
         self.configure(wrench_limit, wrench_rate_limit)
         self.last: WrenchSample | None = None
         self.frozen_since: float | None = None
+        self._last_xyz = (0.0, 0.0, 0.0)
 
     def configure(self, wrench_limit: float, wrench_rate_limit: float) -> None:
         self.wrench_limit, self.wrench_rate_limit = wrench_limit, wrench_rate_limit
 
     def reset(self) -> None:
         self.last, self.frozen_since = None, None
+        self._last_xyz = (0.0, 0.0, 0.0)
 
     def check(self, frame_id: str, force: Sequence[float], t: float) -> WrenchSample:
         """Accept one reading or raise :class:`InputError` saying why not."""
-        F_S = np.asarray(force, dtype=float)
-        if F_S.shape != (3,) or not math.isfinite(F_S.sum()):
-            raise InputError(f'wrench holds NaN/Inf or is not 3-D: {F_S.tolist()}')
+        if len(force) != 3:
+            raise InputError(f'wrench is not 3-D: {list(force)}')
+        fx, fy, fz = (float(c) for c in force)
+        if not math.isfinite(fx + fy + fz):
+            raise InputError(f'wrench holds NaN/Inf: {[fx, fy, fz]}')
         if not self._frame_exists(frame_id or ' '):
             raise InputError(f"wrench frame '{frame_id}' is not a frame of the robot model")
         last = self.last
         if last is not None and t < last.t:
             raise InputError(f'wrench stamp {t:.6f} is older than the last one {last.t:.6f}')
-        size = float(np.linalg.norm(F_S))
+        size = math.hypot(fx, fy, fz)
         if size > self.wrench_limit:
             raise ImplausibleWrench(f'implausible wrench: |F| = {size:.4g} N > wrench_limit '
-                             f'{self.wrench_limit:g} N')
-        if last is not None and frame_id == last.frame_id and t > last.t:
-            rate = float(np.linalg.norm(F_S - last.F_S)) / (t - last.t)
+                                    f'{self.wrench_limit:g} N')
+        same_frame = last is not None and frame_id == last.frame_id
+        if same_frame and t > last.t:
+            lx, ly, lz = self._last_xyz
+            rate = math.hypot(fx - lx, fy - ly, fz - lz) / (t - last.t)
             if rate > self.wrench_rate_limit:
                 raise ImplausibleWrench(f'implausible wrench: changes at {rate:.4g} N/s > '
-                                 f'wrench_rate_limit {self.wrench_rate_limit:g} N/s')
-        frozen = (last is not None and frame_id == last.frame_id and size > 0.0
-                  and np.array_equal(F_S, last.F_S))
+                                        f'wrench_rate_limit {self.wrench_rate_limit:g} N/s')
+        frozen = same_frame and size > 0.0 and (fx, fy, fz) == self._last_xyz
         self.frozen_since = (self.frozen_since if self.frozen_since is not None else
                              last.t) if frozen else None
-        self.last = WrenchSample(t, frame_id, F_S)
+        self._last_xyz = (fx, fy, fz)
+        self.last = WrenchSample(t, frame_id, np.array((fx, fy, fz)))
         return self.last

@@ -41,7 +41,7 @@ from .margin import delay_margin
 from .modes import Mode, TickOutput
 from .params import ControllerParams, ParameterValidationError, build_params
 from .reference import BlendedReference, SineReference
-from .robot_model import ModelError, RobotModel
+from .robot_model import ModelError, RobotModel, TaskKinematics
 from .stiffness_loop import StiffnessLoop, StiffnessStatus
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
@@ -80,6 +80,8 @@ class ControllerRuntime:
         self._filter = LowPassFilter(params.runtime.force_filter_hz)
         self._ref = BlendedReference(_sine(params), params.law.n, params.runtime.ref_blend_time)
         self._state: JointSample | None = None
+        self._kin_of: JointSample | None = None  # the state _kin_cached belongs to
+        self._kin_cached: TaskKinematics | None = None
         self._wrench: WrenchSample | None = None
         self._wrench_prev_t, self._new_wrench = -math.inf, False
         self._clock = _Clock()
@@ -253,7 +255,8 @@ class ControllerRuntime:
         try:
             out = self.ctrl.step(self._state.q, self._state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self._params.law.f_d),
-                                 approach=approach, r_bias=self._handover_bias())
+                                 approach=approach, r_bias=self._handover_bias(),
+                                 kin=self._kin())
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
@@ -296,7 +299,7 @@ class ControllerRuntime:
         """(Re)start: the reference blends from the arm's position and velocity."""
         c = self._clock
         c.t0 = self._state.t if c.t0 is None else c.t0
-        kin = self.model.kinematics(self._state.q, self._state.qdot)
+        kin = self._kin()
         pdot_W = np.zeros(3)
         pdot_W[self.model.task_index] = kin.xdot
         self._ref.start_from(self.run_time, kin.p_W, pdot_W)
@@ -326,7 +329,7 @@ class ControllerRuntime:
         return w * dr, w * drdot
 
     def _enter_approach(self) -> None:
-        kin = self.model.kinematics(self._state.q, self._state.qdot)
+        kin = self._kin()
         x_n = float(self._params.law.n[self.model.task_index] @ kin.x)
         self._approach.start(x_n, self._r_n)
         self.counters['approach_entries'] += 1
@@ -335,7 +338,7 @@ class ControllerRuntime:
     def _approach_ref(self, dt: float) -> ApproachRef | None:
         if self.mode not in (Mode.APPROACH, Mode.NO_SURFACE):
             return None
-        kin = self.model.kinematics(self._state.q, self._state.qdot)
+        kin = self._kin()
         ref = self._approach.step(dt, float(self._params.law.n[self.model.task_index] @ kin.x))
         if self._approach.exhausted:
             self.mode = Mode.NO_SURFACE
@@ -361,12 +364,21 @@ class ControllerRuntime:
         self._limiter.reset()
         self.ctrl.h = 0.0
 
+    def _kin(self) -> TaskKinematics:
+        """Kinematics of the latest joint state, computed once per state."""
+        s = self._state
+        if self._kin_of is not s:
+            self._kin_cached, self._kin_of = self.model.kinematics(s.q, s.qdot), s
+        return self._kin_cached
+
     def _filtered_force(self) -> np.ndarray:
         """f_W: the newest wrench in the base frame, low-pass filtered over wrench stamps."""
         if self._new_wrench:
             w = self._wrench
-            R = (None if w.frame_id == self.model.base_link
-                 else self.model.frame_rotation(self._state.q, w.frame_id))
+            frame = w.frame_id
+            R = (None if frame == self.model.base_link else self._kin().R_W_ee
+                 if frame == self.model.end_effector_link
+                 else self.model.frame_rotation(self._state.q, frame))
             f_W = -w.F_S if R is None else f_W_from_sensor_wrench(R, w.F_S)
             gap = w.t - self._wrench_prev_t
             self._filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else self._period)

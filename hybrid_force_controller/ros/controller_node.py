@@ -202,7 +202,7 @@ class ControllerNode(LifecycleNode):
         self._ran = True
         self._reset_timing()
         period = self._period = 1.0 / self.runtime.params.runtime.rate_hz
-        if self.node_values['tick_mode'] == 'timer':
+        if self._tick_mode() == 'timer':
             self._tick_timer = self.create_timer(period, self._guarded('tick', self._tick))
         else:
             self._watchdog = self.create_timer(WATCHDOG_PERIODS * period,
@@ -210,6 +210,13 @@ class ControllerNode(LifecycleNode):
         self.state_label = 'active'
         self.get_logger().info('active: commanding')
         return _OK
+
+    def _tick_mode(self) -> str:
+        """Return the tick mode in use (auto: joint_state on the wall clock, timer with sim time)."""
+        mode = self.node_values['tick_mode']
+        if mode == 'auto':
+            mode = 'timer' if self.get_parameter('use_sim_time').value else 'joint_state'
+        return mode
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         for timer in (self._tick_timer, self._watchdog):
@@ -339,7 +346,7 @@ HELP_PARAMETERS = (
     ('lambda1, lambda2, gamma', 'gains of eqs. (11) and (26)'),
     ('rate_hz', 'control rate (default 1000)'),
     ('telemetry_rate_hz', 'rate of ~/x ... ~/theta_hat (default 100)'),
-    ('tick_mode', "'timer' (default) or 'joint_state'"),
+    ('tick_mode', "'auto' (default: joint_state, timer with sim time), 'timer', 'joint_state'"),
     ('autostart', 'configure + activate at start (default true)'),
     ('executor', "'events' (default) or 'single_threaded'"),
     ('sensor_qos', "'best_effort' (default) or 'reliable' inputs"),

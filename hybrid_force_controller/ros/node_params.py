@@ -12,7 +12,7 @@ from ..core.params import ParamSpec as _S
 __all__ = ['CONTROLLER_NODE_SCHEMA', 'EXECUTOR_SPEC', 'TICK_MODES', 'SENSOR_QOS',
            'check_choice']
 
-TICK_MODES = ('timer', 'joint_state')
+TICK_MODES = ('auto', 'timer', 'joint_state')
 SENSOR_QOS = ('best_effort', 'reliable')
 EXECUTOR_SPEC = _S('executor', 'string', 'events',
                    "Executor: 'events' (rclpy.experimental.EventsExecutor, least CPU) or "
@@ -23,11 +23,12 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
        'Rate of ~/x, ~/x_desired, ~/wrench, ~/wrench_desired, ~/error, ~/theta_hat, Hz '
        '(every k-th tick, k = round(rate_hz / telemetry_rate_hz); 0: off). Efforts go out '
        'every tick.', 0.0, 10000.0),
-    _S('tick_mode', 'string', 'timer',
+    _S('tick_mode', 'string', 'auto',
        "'timer': tick at rate_hz on the node clock; 'joint_state': tick on each new joint "
        'state (less delay and CPU; a watchdog checks every 5 periods and ticks after 2 '
-       'periods without a tick, so stale or slow inputs still lead to safe mode).',
-       read_only=True),
+       "periods without a tick, so stale or slow inputs still lead to safe mode); 'auto': "
+       'joint_state on the wall clock, timer with use_sim_time (a lockstep sim steps only '
+       'on commands).', read_only=True),
     EXECUTOR_SPEC,
     _S('autostart', 'bool', True,
        'Configure and activate at start (false: a managed node that waits for the '

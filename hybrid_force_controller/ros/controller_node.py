@@ -212,7 +212,7 @@ class ControllerNode(LifecycleNode):
         return _OK
 
     def _tick_mode(self) -> str:
-        """Return the tick mode in use (auto: joint_state on the wall clock, timer with sim time)."""
+        """Return the tick mode in use (auto: joint_state, or timer with sim time)."""
         mode = self.node_values['tick_mode']
         if mode == 'auto':
             mode = 'timer' if self.get_parameter('use_sim_time').value else 'joint_state'

@@ -1,4 +1,5 @@
-"""Closed-form model of the 2-link planar arm of section V of [1], eqs. (30)-(37).
+"""
+Closed-form model of the 2-link planar arm of section V of [1], eqs. (30)-(37).
 
 Pure numpy test oracle for ``hybrid_force_controller.core.robot_model``. Reference [1] is
 Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
@@ -24,7 +25,8 @@ __all__ = ['TwoLinkArm']
 
 @dataclass(frozen=True)
 class TwoLinkArm:
-    """The paper's 2-link planar arm with point masses at the link tips.
+    """
+    The paper's 2-link planar arm with point masses at the link tips.
 
     Attributes
     ----------
@@ -34,6 +36,7 @@ class TwoLinkArm:
         Point masses at the tips of links 1 and 2, kg (``theta = [m1, m2]``).
     g0 : float
         Gravity magnitude along -y of the base frame, m/s^2.
+
     """
 
     l1: float = 1.0
@@ -49,7 +52,8 @@ class TwoLinkArm:
 
     # ------------------------------------------------------------------ kinematics
     def fk(self, q: np.ndarray) -> np.ndarray:
-        """Task position ``x_W = [x, y]`` of the end effector, eq. (30) (as printed, correct).
+        """
+        Task position ``x_W = [x, y]`` of the end effector, eq. (30) (as printed, correct).
 
         Parameters
         ----------
@@ -58,13 +62,15 @@ class TwoLinkArm:
         Returns
         -------
         (2,) end-effector position in the base frame, m.
+
         """
         q1, q2 = q
         return np.array([self.l1 * np.cos(q1) + self.l2 * np.cos(q1 + q2),
                          self.l1 * np.sin(q1) + self.l2 * np.sin(q1 + q2)])
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
-        """Task Jacobian ``J_W = d x_W / d q``, eq. (31) (as printed, correct).
+        """
+        Task Jacobian ``J_W = d x_W / d q``, eq. (31) (as printed, correct).
 
         Parameters
         ----------
@@ -73,6 +79,7 @@ class TwoLinkArm:
         Returns
         -------
         (2, 2) Jacobian, m/rad.
+
         """
         q1, q2 = q
         s1, c1 = np.sin(q1), np.cos(q1)
@@ -81,7 +88,8 @@ class TwoLinkArm:
                          [self.l1 * c1 + self.l2 * c12, self.l2 * c12]])
 
     def jacobian_dot(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        """Time derivative ``Jdot_W`` of eq. (31) along ``qdot`` (not printed in [1]).
+        """
+        Time derivative ``Jdot_W`` of eq. (31) along ``qdot`` (not printed in [1]).
 
         Parameters
         ----------
@@ -91,6 +99,7 @@ class TwoLinkArm:
         Returns
         -------
         (2, 2) Jacobian derivative, m/(rad s).
+
         """
         q1, q2 = q
         w1, w12 = qdot[0], qdot[0] + qdot[1]
@@ -102,7 +111,8 @@ class TwoLinkArm:
 
     # ------------------------------------------------------------------ joint space
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
-        """Joint inertia matrix M_q, eq. (32), corrected.
+        """
+        Joint inertia matrix M_q, eq. (32), corrected.
 
         Corrected: the off-diagonal entry is ``M12 = m2 l2 (l2 + l1 cos q2)``; [1] prints
         ``m2 l2 (l2 + 2 l1 cos q2)`` (the factor 2 belongs to M11 only).
@@ -114,6 +124,7 @@ class TwoLinkArm:
         Returns
         -------
         (2, 2) symmetric positive-definite inertia matrix, kg m^2.
+
         """
         c2 = np.cos(q[1])
         l1, l2, m1, m2 = self.l1, self.l2, self.m1, self.m2
@@ -122,7 +133,8 @@ class TwoLinkArm:
         return np.array([[m11, m12], [m12, m2 * l2 ** 2]])
 
     def mass_matrix_as_printed(self, q: np.ndarray) -> np.ndarray:
-        """Eq. (32) exactly as printed in [1]: ``M12 = m2 l2 (l2 + 2 l1 cos q2)`` (wrong).
+        """
+        Eq. (32) exactly as printed in [1]: ``M12 = m2 l2 (l2 + 2 l1 cos q2)`` (wrong).
 
         Differs from :meth:`mass_matrix` by ``m2 l1 l2 cos q2`` in both off-diagonal
         entries.
@@ -134,7 +146,8 @@ class TwoLinkArm:
         return np.array([[m11, m12], [m12, m2 * l2 ** 2]])
 
     def coriolis(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        """Coriolis/centrifugal matrix C_q(q, qdot), eq. (33), corrected (Christoffel form).
+        """
+        Coriolis/centrifugal matrix C_q(q, qdot), eq. (33), corrected (Christoffel form).
 
         Corrected: ``C_q = m2 l1 l2 sin q2 [[-qdot2, -(qdot1 + qdot2)], [qdot1, 0]]``, the
         Christoffel-symbol matrix, for which ``Mdot_q - 2 C_q`` is skew-symmetric. [1]
@@ -150,6 +163,7 @@ class TwoLinkArm:
         Returns
         -------
         (2, 2) matrix, kg m^2/s.
+
         """
         h = self.m2 * self.l1 * self.l2 * np.sin(q[1])
         qd1, qd2 = qdot
@@ -162,7 +176,8 @@ class TwoLinkArm:
         return h * np.array([[-2.0 * qd2, -qd2], [0.0, qd2]])
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
-        """Gravity torques g_q(q), eq. (34) (as printed, correct; 9.81 replaced by g0).
+        """
+        Gravity torques g_q(q), eq. (34) (as printed, correct; 9.81 replaced by g0).
 
         Parameters
         ----------
@@ -171,6 +186,7 @@ class TwoLinkArm:
         Returns
         -------
         (2,) joint torques, N m.
+
         """
         c1, c12 = np.cos(q[0]), np.cos(q[0] + q[1])
         l1, l2, m1, m2 = self.l1, self.l2, self.m1, self.m2
@@ -179,7 +195,8 @@ class TwoLinkArm:
     # ------------------------------------------------------------------ task space
     def task_terms(self, q: np.ndarray,
                    qdot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Task-space M_x, C_x, g_x, eqs. (35)-(37), corrected.
+        """
+        Task-space M_x, C_x, g_x, eqs. (35)-(37), corrected.
 
         ``M_x = J^-T M_q J^-1`` (35; [1] prints ``J^T M_q J^-1``),
         ``C_x = J^-T (C_q - M_q J^-1 Jdot) J^-1`` (36; [1] ends in ``J``),
@@ -193,6 +210,7 @@ class TwoLinkArm:
         Returns
         -------
         M_x : (2, 2) kg; C_x : (2, 2) kg/s; g_x : (2,) N.
+
         """
         J_inv = np.linalg.inv(self.jacobian(q))
         M_q = self.mass_matrix(q)
@@ -201,7 +219,8 @@ class TwoLinkArm:
         return M_x, C_x, J_inv.T @ self.gravity(q)
 
     def task_inertia_as_printed(self, q: np.ndarray) -> np.ndarray:
-        """Eq. (35) exactly as printed: ``M_x = J^T M_q J^-1`` (wrong; not symmetric).
+        """
+        Eq. (35) exactly as printed: ``M_x = J^T M_q J^-1`` (wrong; not symmetric).
 
         Uses the corrected M_q so that only the typo of (35) is exercised.
         """
@@ -209,7 +228,8 @@ class TwoLinkArm:
         return J.T @ self.mass_matrix(q) @ np.linalg.inv(J)
 
     def task_coriolis_as_printed(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        """Eq. (36) exactly as printed: ``C_x = J^-T (C_q - M_q J^-1 Jdot) J`` (wrong).
+        """
+        Eq. (36) exactly as printed: ``C_x = J^-T (C_q - M_q J^-1 Jdot) J`` (wrong).
 
         Uses the corrected M_q and C_q so that only the typo of (36) is exercised.
         """
@@ -220,7 +240,8 @@ class TwoLinkArm:
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:
-        """Joint-space regressor for ``theta = [m1, m2]``, derived by hand from (32)-(34).
+        """
+        Joint-space regressor for ``theta = [m1, m2]``, derived by hand from (32)-(34).
 
         ``Y_q theta = M_q qddot_r + C_q(q, qdot) qdot_r + g_q`` with the corrected M_q, C_q.
         Column 1 (m1): ``[l1^2 a1 + g0 l1 c1, 0]``. Column 2 (m2): the remaining terms.
@@ -233,6 +254,7 @@ class TwoLinkArm:
         Returns
         -------
         (2, 2) regressor, rows joints, columns ``[m1, m2]``.
+
         """
         l1, l2, g0 = self.l1, self.l2, self.g0
         c1, c12 = np.cos(q[0]), np.cos(q[0] + q[1])
@@ -249,7 +271,8 @@ class TwoLinkArm:
 
     def regressor_x(self, q: np.ndarray, qdot: np.ndarray, r: np.ndarray,
                     rdot: np.ndarray) -> np.ndarray:
-        """Task-space regressor of eqs. (4)/(6): ``Y_x theta = M_x rdot + C_x r + g_x``.
+        """
+        Task-space regressor of eqs. (4)/(6): ``Y_x theta = M_x rdot + C_x r + g_x``.
 
         With ``qdot_r = J^-1 r`` and ``qddot_r = J^-1 (rdot - Jdot qdot_r)``,
         ``Y_x = J^-T Y_q(q, qdot, qdot_r, qddot_r)`` (substitute (35)-(37) corrected).
@@ -262,6 +285,7 @@ class TwoLinkArm:
         Returns
         -------
         (2, 2) regressor, rows task axes, columns ``[m1, m2]``.
+
         """
         J = self.jacobian(q)
         qdot_r = np.linalg.solve(J, r)

@@ -1,4 +1,5 @@
-"""Keep DDS on this machine for every test, whatever the caller's environment.
+"""
+Keep DDS on this machine for every test, whatever the caller's environment.
 
 Set before any test module imports rclpy; subprocesses inherit it. Modules that need a
 domain of their own set ROS_DOMAIN_ID themselves (or pass domain_id to rclpy.init).

@@ -1,4 +1,5 @@
-"""Fault-injection rig over real DDS: sim and controller processes with a proxy in between.
+"""
+Fault-injection rig over real DDS: sim and controller processes with a proxy in between.
 
 The ``sim`` process (lockstep: it owns the time) publishes its joint states, its wrench and
 its ``/clock`` under :data:`RAW`; the :class:`Proxy` node in the test process forwards the
@@ -260,8 +261,11 @@ class Rig:
 
     def diag_after(self, t: float, what: str = '', predicate=None,
                    within: float | None = None) -> dict[str, Any]:
-        """First /diagnostics status stamped at or after ``t`` (and satisfying ``predicate``),
-        arriving within ``within`` s of sim time from now or from ``t`` when that is given."""
+        """
+        First /diagnostics status stamped at or after ``t`` (and satisfying ``predicate``).
+
+        Arriving within ``within`` s of sim time from now or from ``t`` when that is given.
+        """
         found: list[dict[str, Any]] = []
         t_limit = np.inf if within is None else max(t, self.now) + within
 
@@ -289,9 +293,12 @@ class Rig:
 
     def wait_tracking(self, within: float, what: str, window: float = 0.3,
                       fresh: bool = True) -> dict[str, Any]:
-        """Force within f_tol of f_d for ``window`` s of sim time, reached within ``within``
-        s; then a /diagnostics status stamped in that window (and, if ``fresh``, after this
-        call) reports mode 'running', in contact."""
+        """
+        Force within f_tol of f_d for ``window`` s of sim time, reached within ``within`` s.
+
+        Then a /diagnostics status stamped in that window (and, if ``fresh``, after this call)
+        reports mode 'running', in contact.
+        """
         t_call = self.now
         t_limit = self.now + within
         self.wait(lambda: self.force_ok_for(window) or self.proxy.now > t_limit,
@@ -351,8 +358,12 @@ class Rig:
     # ------------------------------------------------------------- cases
     @contextmanager
     def case(self) -> Iterator[dict[str, Any]]:
-        """Checks (1)-(3) of every case around its body: the controller is alive and every
-        effort it published meanwhile was finite and within the limits and rate limit."""
+        """
+        Checks (1)-(3) of every case around its body.
+
+        The controller is alive and every effort it published meanwhile was finite and within the
+        limits and rate limit.
+        """
         info = {'violations': len(self.proxy.violations), 'cmds': len(self.proxy.cmds),
                 'sim_log': self.sim.log_size(), 't0': self.now}
         yield info

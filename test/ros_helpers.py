@@ -1,4 +1,5 @@
-"""Shared helpers of the tests that run over real DDS.
+"""
+Shared helpers of the tests that run over real DDS.
 
 * :func:`domain_id`: each test module gets its own ROS domain, offset from the base domain
   of the run (``ROS_DOMAIN_ID`` when the run started, 42 by default), so two runs with
@@ -51,7 +52,8 @@ def node_env(domain: int, **extra: str) -> dict[str, str]:
 
 
 class NodeProcess:
-    """One node process; its output goes to a log file that a failure message can show.
+    """
+    One node process; its output goes to a log file that a failure message can show.
 
     ``params_file`` (default config/params.yaml; ``None`` for none) and ``args`` follow
     ``--ros-args``; ``argv`` goes before it (the executable's own options).
@@ -110,8 +112,11 @@ class NodeProcess:
             self.proc.wait(30)
 
     def stop(self, timeout: float = 10.0) -> int | None:
-        """SIGINT (clean shutdown); SIGKILL if it does not exit within ``timeout``.
-        Returns the exit code."""
+        """
+        SIGINT (clean shutdown); SIGKILL if it does not exit within ``timeout``.
+
+        Returns the exit code.
+        """
         if self.alive:
             self.proc.send_signal(signal.SIGCONT)
             self.proc.send_signal(signal.SIGINT)
@@ -183,8 +188,12 @@ class Spun:
 
 def wait_for(predicate: Callable[[], bool], what: str, timeout: float = WALL_TIMEOUT,
              alive: Iterable[NodeProcess] = (), poll: float = 0.01) -> None:
-    """Wait until ``predicate()`` holds; fail (with the processes' log tails) when one of
-    ``alive`` exits or after ``timeout`` s of wall time (a guard against hangs only)."""
+    """
+    Wait until ``predicate()`` holds.
+
+    Fail (with the processes' log tails) when one of ``alive`` exits or after ``timeout`` s of wall
+    time (a guard against hangs only).
+    """
     procs = list(alive)
     deadline = time.monotonic() + timeout
     pause = threading.Event()
@@ -208,8 +217,11 @@ def wait_future(future: Any, timeout: float = WALL_TIMEOUT) -> Any:
 
 
 def parse_diagnostics(msg: Any) -> dict[str, Any]:
-    """The first status of a DiagnosticArray: ``level``, ``message``, ``name`` and every
-    key-value, with ints, floats and booleans converted."""
+    """
+    The first status of a DiagnosticArray.
+
+    ``level``, ``message``, ``name`` and every key-value, with ints, floats and booleans converted.
+    """
     status = msg.status[0]
     level = status.level
     values: dict[str, Any] = {

@@ -1,4 +1,5 @@
-"""Any arm from a URDF: redundant, spatial and 7-DOF arms, parameter sets, bad chains.
+"""
+Any arm from a URDF: redundant, spatial and 7-DOF arms, parameter sets, bad chains.
 
 Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds); the last
 test starts the controller node for the Panda as a subprocess in its own ROS domain.

@@ -1,5 +1,7 @@
-"""Closed loop of the runtime (the node's logic) on the offline plant, through the loop
-engine: the targets of section V of [1].
+"""
+Closed loop of the runtime (the node's logic) on the offline plant, through the loop engine.
+
+The targets of section V of [1].
 
 Each run is 20 s of simulated time at 1 kHz. Targets over t >= 5 s: RMS tangential
 position error <= 0.2 mm, RMS normal force error <= 0.02 N and no loss of contact. With
@@ -93,7 +95,8 @@ def test_adaptation_converges_to_true_masses():
 
 
 def test_negative_control_without_adaptation_misses_targets():
-    """Gamma = 1e12 freezes theta_hat at half the true masses: the targets are missed.
+    """
+    Gamma = 1e12 freezes theta_hat at half the true masses: the targets are missed.
 
     Proves these tests can fail and that the adaptation (26) is what meets them.
     """
@@ -107,8 +110,12 @@ def test_negative_control_without_adaptation_misses_targets():
 
 
 def test_frozen_exact_masses_still_meet_targets():
-    """Contrast to the negative control: Gamma = 1e12 by itself does not spoil the loop;
-    the misses above come from the wrong, non-adapted masses."""
+    """
+    Contrast to the negative control.
+
+    Gamma = 1e12 by itself does not spoil the loop; the misses above come from the wrong,
+    non-adapted masses.
+    """
     res, m = run(theta_hat0_scale=1.0, overrides={'gamma': [1e12, 1e12]})
     np.testing.assert_allclose(res.theta_hat[-1], res.theta_true, rtol=1e-5)
     assert_targets(m)

@@ -1,4 +1,7 @@
-"""Unit relations of the control law (eqs. (8), (11), (26), (29)) on the bundled 2-link arm.
+"""
+Unit relations of the control law (eqs.
+
+(8), (11), (26), (29)) on the bundled 2-link arm.
 
 Pure numpy + pinocchio: no ROS. The closed-loop checks use the offline plant
 (:class:`ArmSimulator`) and the paper's start pose.
@@ -32,8 +35,11 @@ def model() -> RobotModel:
 
 
 def make_ctrl(model: RobotModel, **overrides) -> HybridForceController:
-    """A controller with the gains of ``build_params(model, overrides)``; ``ctrl.full`` is
-    the whole parameter set (for the reference)."""
+    """
+    A controller with the gains of ``build_params(model, overrides)``.
+
+    ``ctrl.full`` is the whole parameter set (for the reference).
+    """
     params = build_params(model, overrides)
     ctrl = HybridForceController(model, params.law)
     ctrl.full = params
@@ -110,7 +116,8 @@ def test_returned_e_is_xdot_minus_r(model):
 
 
 def _record_r(model: RobotModel, k_surface: float, steps: int = 1500):
-    """Closed loop of the paper's start (blend into the sine) on a surface of stiffness k.
+    """
+    Closed loop of the paper's start (blend into the sine) on a surface of stiffness k.
 
     Returns r(t_i), rdot(t_i) and the normal force f_n(t_i) at every tick; r is evaluated
     with the force integral h the controller holds at that tick.
@@ -146,8 +153,11 @@ def _fd_mismatch(model, k_surface):
 
 
 def test_rdot_is_the_time_derivative_of_r_when_k_equals_k_s(model):
-    """Central differences of r along a closed-loop run match rdot (no accelerations
-    needed): both the tangential part and the normal (force) part."""
+    """
+    Central differences of r along a closed-loop run match rdot (no accelerations needed).
+
+    Both the tangential part and the normal (force) part.
+    """
     err, rdot, n = _fd_mismatch(model, k_surface=6000.0)  # = k_s default
     assert np.abs(rdot).max() > 0.1  # a non-trivial signal (m/s^2)
     t_hat = np.array([n[1], -n[0]])
@@ -157,8 +167,11 @@ def test_rdot_is_the_time_derivative_of_r_when_k_equals_k_s(model):
 
 
 def test_rdot_normal_part_differs_when_k_is_not_k_s(model):
-    """Control: with k = k_s / 2 the model-based force rate k_s n^T xdot is wrong by 2x,
-    and the finite-difference check above fails on the normal component."""
+    """
+    Control: with k = k_s / 2 the model-based force rate k_s n^T xdot is wrong by 2x.
+
+    And the finite-difference check above fails on the normal component.
+    """
     err, _, n = _fd_mismatch(model, k_surface=3000.0)
     assert np.abs(err @ n).max() > 0.05
 
@@ -215,9 +228,11 @@ def test_adapt_theta_is_clipped_to_the_box():
 
 
 def test_step_adapts_with_k_a_times_e(model):
-    """The update in step() is (26) on k_a e: theta - dt Gamma^-1 Y_x^T (k_a e).
+    """
+    The update in step() is (26) on k_a e: theta - dt Gamma^-1 Y_x^T (k_a e).
 
-    A short dt keeps the step inside the projection box."""
+    A short dt keeps the step inside the projection box.
+    """
     ctrl = make_ctrl(model, gamma=[70.0, 50.0], k_a=3000.0, adapt_error_limit=1e3)
     p = ctrl.gains
     q, qdot = Q0 + 0.05, np.array([0.3, -0.1])
@@ -237,8 +252,12 @@ def test_step_adapts_with_k_a_times_e(model):
 
 
 def test_adaptation_integrates_a_saturated_error(model):
-    """|e| above adapt_error_limit: the update keeps its direction, its size is that of an
-    error of norm adapt_error_limit (a transient cannot throw theta_hat)."""
+    """
+    |e| above adapt_error_limit.
+
+    The update keeps its direction, its size is that of an error of norm adapt_error_limit (a
+    transient cannot throw theta_hat).
+    """
     q, qdot = Q0 + 0.05, np.array([0.3, -0.1])
     f_W, dt = np.array([0.0, -1.2, 0.0]), 1e-5
     steps = {}

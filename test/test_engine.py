@@ -1,5 +1,9 @@
-"""The loop engine and its timing model (engine.py, timing.py), and what the runtime does
-with late ticks and gaps (issue 9): offline, deterministic, seeded. No ROS."""
+"""
+The loop engine and its timing model (engine.py, timing.py).
+
+And what the runtime does with late ticks and gaps (issue 9): offline, deterministic, seeded. No
+ROS.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -97,8 +101,12 @@ def hiccup_run(who: str, max_integration_dt: float | None = None):
 
 @pytest.mark.parametrize('who', ['controller', 'plant'])
 def test_50_ms_gaps_leave_force_effort_and_theta_hat_calm(who):
-    """Three 50 ms gaps (no ticks, or no inputs): the force stays within 0.05 N of f_d,
-    no effort step beyond 0.5 N m, theta_hat within 1 % of the truth, no safe mode."""
+    """
+    Three 50 ms gaps (no ticks, or no inputs).
+
+    The force stays within 0.05 N of f_d, no effort step beyond 0.5 N m, theta_hat within 1 % of
+    the truth, no safe mode.
+    """
     r = hiccup_run(who)
     w = r.t >= 5.5
     f = r.f_true_W[w] @ r.n_W
@@ -110,8 +118,11 @@ def test_50_ms_gaps_leave_force_effort_and_theta_hat_calm(who):
 
 
 def test_clamping_the_integration_step_halves_the_theta_hat_excursion():
-    """Negative control: a late state allowed to integrate its whole gap moves theta_hat
-    about twice as far."""
+    """
+    Negative control.
+
+    A late state allowed to integrate its whole gap moves theta_hat about twice as far.
+    """
     def excursion(r):
         w = r.t >= 5.5
         return np.abs(r.theta_hat[w] / r.theta_true - 1.0).max()
@@ -121,8 +132,12 @@ def test_clamping_the_integration_step_halves_the_theta_hat_excursion():
 
 
 def test_old_gains_fail_where_the_new_ones_hold():
-    """The real-time failure of the old defaults (K_D 200, adaptation on k_s e) reproduces
-    offline with 2 ms one-way latency; the defaults hold there (10 ms margin)."""
+    """
+    The real-time failure of the old defaults (K_D 200.
+
+    Adaptation on k_s e) reproduces offline with 2 ms one-way latency; the defaults hold there (10
+    ms margin).
+    """
     timing = TimingModel.ros_measured(seed=0, latency=2e-3)
     for overrides, holds in (({'k_d': 200.0, 'k_a': 6000.0}, False), ({}, True)):
         r = run_scenario(ScenarioConfig(theta_hat0_scale=0.5, duration=8.0, timing=timing,

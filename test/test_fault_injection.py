@@ -1,4 +1,5 @@
-"""Fault injection over real DDS: bad inputs and process faults against the real nodes.
+"""
+Fault injection over real DDS: bad inputs and process faults against the real nodes.
 
 One ``sim`` process (lockstep, owns /clock) and one controller process (``use_sim_time``)
 run for the whole module; this process sits between them (see ``fault_harness``): it
@@ -96,8 +97,11 @@ def wrench_copy(msg: WrenchStamped, force=None, frame=None) -> WrenchStamped:
 
 
 def sensor_force(rig: Rig, f_n: float) -> tuple[float, float, float]:
-    """What the wrist sensor (tool0) reads when the tool presses with ``f_n`` N along n, at
-    the arm's latest raw joint state."""
+    """
+    What the wrist sensor (tool0) reads when the tool presses with ``f_n`` N along n.
+
+    At the arm's latest raw joint state.
+    """
     R = MODEL.frame_rotation(np.array(rig.proxy.js_raw.position), 'tool0')
     return tuple(float(c) for c in sensor_wrench_from_f_W(R, f_n * N_W))
 
@@ -138,8 +142,12 @@ def largest_step(rig: Rig, t0: float, t1: float) -> float:
 
 def input_fault_case(rig: Rig, what: str, js=None, wrench=None, counter: str = '',
                      texts: tuple[str, ...] = (), duration: float = 0.2) -> None:
-    """Play a fault of counted bad messages; they are all dropped, counted and named (the
-    last one's reason on /diagnostics), and tracking is not disturbed at all."""
+    """
+    Play a fault of counted bad messages.
+
+    They are all dropped, counted and named (the last one's reason on /diagnostics), and tracking
+    is not disturbed at all.
+    """
     hook = js or wrench
     with rig.case():
         before = rig.last_diag()
@@ -226,9 +234,12 @@ def test_wrench_in_unknown_frame_is_rejected_and_named(healthy):
 
 
 def test_wrench_in_base_link_is_accepted_and_rotated(healthy):
-    """The sensor force re-expressed in base_link: F_B = R_B_tool(q) F_tool. Only a correct
-    rotation keeps the normal force at f_d (R is about 90 deg here, so a wrong or missing
-    rotation would turn the measured normal force into a tangential one)."""
+    """
+    The sensor force re-expressed in base_link: F_B = R_B_tool(q) F_tool.
+
+    Only a correct rotation keeps the normal force at f_d (R is about 90 deg here, so a wrong or
+    missing rotation would turn the measured normal force into a tangential one).
+    """
     rig = healthy
     rotations = []
 
@@ -268,8 +279,12 @@ def test_out_of_order_wrench_stamp(healthy):
 
 
 def test_duplicate_stamps_are_harmless(healthy):
-    """Every message delivered twice with the same stamp (e.g. a DDS re-send): equal stamps
-    are not out of order, so nothing is dropped and tracking is unaffected."""
+    """
+    Every message delivered twice with the same stamp (e.g.
+
+    a DDS re-send): equal stamps are not out of order, so nothing is dropped and tracking is
+    unaffected.
+    """
     rig = healthy
     with rig.case():
         before = rig.last_diag()
@@ -311,8 +326,12 @@ def test_rejected_parameter_set_changes_nothing(healthy, what, values, reason):
 
 
 def test_good_multi_value_set_applies_atomically(healthy):
-    """lambda2 = 0.15 alone breaks eq. (29) with lambda1 = 40 (1600 <= 1800); with lambda1 =
-    50 in the same set it holds (2500 > 1800): the set is validated and applied as one."""
+    """
+    lambda2 = 0.15 alone breaks eq. (29) with lambda1 = 40 (1600 <= 1800).
+
+    With lambda1 = 50 in the same set it holds (2500 > 1800): the set is validated and applied as
+    one.
+    """
     rig = healthy
     with rig.case():
         alone = rig.set_params(rig.params, lambda2=0.15)[0]
@@ -353,11 +372,13 @@ def test_sim_surface_parameters_are_validated(healthy):
 
 # ----------------------------------------------------------------------------- stale inputs
 def stale_case(rig: Rig, what: str, drop_js: bool, jump_bound: float) -> None:
-    """Stop one input for 0.2 s of sim time (> state_timeout = 0.1 s) and resume it.
+    """
+    Stop one input for 0.2 s of sim time (> state_timeout = 0.1 s) and resume it.
 
     Without joint states nothing can hold this arm for long (link 2 stands up: an inverted
     pendulum with a ~0.3 s time constant, and safe mode has no velocity to damp), so the
-    outage is kept to 0.1 s of safe mode."""
+    outage is kept to 0.1 s of safe mode.
+    """
     def drop(msg):
         return []
     with rig.case():
@@ -375,19 +396,25 @@ def stale_case(rig: Rig, what: str, drop_js: bool, jump_bound: float) -> None:
 
 
 def test_stale_joint_states_safe_mode_and_recovery(healthy):
-    """Bound on the effort jump when the loop takes over again: the reference restarts
-    from the arm's position and velocity, so e = 0 and the first running effort differs
-    from the safe hold g_hat + J^T f_hold (no damping: the velocity is stale) only by
-    J^T (f - f_hold) + k_d J^T (normal force-loop term) + M qddot_r + C qdot_r. With
-    |J^T| <= 2 m, |f - f_hold| <= 0.2 N, c lambda1 |df| k_d <= 0.3 N and |qddot_r| from the
-    reference's acceleration (<= 0.1 m/s^2 at 2.2 kg) that is <= 2 (0.2 + 0.3 + 0.3) ~ 1.6
-    N m: 3 N m (3 % of the limit). Offline over 13 phases of the sine: <= 0.52 N m."""
+    """
+    Bound on the effort jump when the loop takes over again.
+
+    The reference restarts from the arm's position and velocity, so e = 0 and the first running
+    effort differs from the safe hold g_hat + J^T f_hold (no damping: the velocity is stale) only
+    by J^T (f - f_hold) + k_d J^T (normal force-loop term) + M qddot_r + C qdot_r. With |J^T| <= 2
+    m, |f - f_hold| <= 0.2 N, c lambda1 |df| k_d <= 0.3 N and |qddot_r| from the reference's
+    acceleration (<= 0.1 m/s^2 at 2.2 kg) that is <= 2 (0.2 + 0.3 + 0.3) ~ 1.6 N m: 3 N m (3 % of
+    the limit). Offline over 13 phases of the sine: <= 0.52 N m.
+    """
     stale_case(healthy, 'stale joint states', drop_js=True, jump_bound=3.0)
 
 
 def test_stale_wrench_safe_mode_with_rate_limit(healthy):
-    """The same with max_effort_rate = 5 N m per tick: the limit holds across entering and
-    leaving safe mode (the effort monitor checks every tick)."""
+    """
+    The same with max_effort_rate = 5 N m per tick.
+
+    The limit holds across entering and leaving safe mode (the effort monitor checks every tick).
+    """
     rig = healthy
     assert rig.set_params(rig.params, max_effort_rate=5.0)[0].successful
     rig.set_limits(rate=5.0)
@@ -446,8 +473,12 @@ def with_rate_limit(rig: Rig, rate: float):
 
 
 def test_force_spike_of_1e4_newton_is_dropped(healthy):
-    """One wrench sample of 1e4 N (along the normal): implausible (above wrench_limit), so
-    it is dropped and counted, named on /diagnostics, and tracking is not disturbed."""
+    """
+    One wrench sample of 1e4 N (along the normal).
+
+    Implausible (above wrench_limit), so it is dropped and counted, named on /diagnostics, and
+    tracking is not disturbed.
+    """
     rig = healthy
     with rig.case():
         before = rig.last_diag()
@@ -471,9 +502,12 @@ def test_force_spike_of_1e4_newton_is_dropped(healthy):
 
 
 def test_saturated_force_sensor_holds_in_safe_mode_and_recovers(healthy):
-    """The sensor reads 1e4 N for 0.3 s (a saturated sensor looks the same): every reading
-    is dropped, the wrench ages past state_timeout and the arm holds in safe mode; when
-    the readings are plausible again, tracking returns by itself."""
+    """
+    The sensor reads 1e4 N for 0.3 s (a saturated sensor looks the same).
+
+    Every reading is dropped, the wrench ages past state_timeout and the arm holds in safe mode;
+    when the readings are plausible again, tracking returns by itself.
+    """
     rig = healthy
     with rig.case():
         before = rig.last_diag()
@@ -487,8 +521,12 @@ def test_saturated_force_sensor_holds_in_safe_mode_and_recovers(healthy):
 
 # ----------------------------------------------------------------------------- restarts
 def test_sim_restart_while_controller_runs(healthy):
-    """Kill the sim and start it again: /clock jumps back to zero; the controller restarts
-    its clock (counted), waits for fresh inputs and tracks again, with no manual step."""
+    """
+    Kill the sim and start it again.
+
+    /clock jumps back to zero; the controller restarts its clock (counted), waits for fresh inputs
+    and tracks again, with no manual step.
+    """
     rig = healthy
     with rig.case():
         before = rig.last_diag()
@@ -505,8 +543,12 @@ def test_sim_restart_while_controller_runs(healthy):
 
 
 def test_controller_restart_while_sim_runs(healthy):
-    """Kill the controller: the sim keeps stepping on its watchdog (held, then zero effort);
-    start the controller again: it tracks again with no manual step."""
+    """
+    Kill the controller.
+
+    The sim keeps stepping on its watchdog (held, then zero effort); start the controller again: it
+    tracks again with no manual step.
+    """
     rig = healthy
     with rig.case():
         rig.expect_alive['controller'] = False
@@ -524,10 +566,13 @@ def test_controller_restart_while_sim_runs(healthy):
 
 # ----------------------------------------------------------------------------- contact loss
 def test_surface_drop_is_regained_by_the_approach(healthy):
-    """The surface drops 3 cm (the sim's surface_point). Out of contact the controller
-    approaches at approach_speed (mode 'approach'; the force integral stays frozen, so no
-    faster) and regains the surface within 1.5 s of sim time, with an impact below
-    5 f_d. Last in the module: the rig is reset afterwards (the surface stays lower)."""
+    """
+    The surface drops 3 cm (the sim's surface_point).
+
+    Out of contact the controller approaches at approach_speed (mode 'approach'; the force integral
+    stays frozen, so no faster) and regains the surface within 1.5 s of sim time, with an impact
+    below 5 f_d. Last in the module: the rig is reset afterwards (the surface stays lower).
+    """
     rig = healthy
     try:
         with rig.case():

@@ -1,4 +1,5 @@
-"""The layer rule, derived from the tree: core <- tools <- ros (and sim_node).
+"""
+The layer rule, derived from the tree: core <- tools <- ros (and sim_node).
 
 * ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself;
 * ``tools/`` imports the standard library, numpy, rosbags, matplotlib, ``core`` and ``tools``

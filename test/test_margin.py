@@ -1,4 +1,5 @@
-"""The delay margin (margin.py) against the loop it predicts, and its use.
+"""
+The delay margin (margin.py) against the loop it predicts, and its use.
 
 The margin is a linear analysis of each task axis with a delayed control force (the
 module docstring); the loop engine runs the nonlinear arm with exactly ``d`` periods of
@@ -28,8 +29,11 @@ def model() -> RobotModel:
 
 
 def _holds(delay_steps: int, overrides: dict) -> bool:
-    """4 s on the stiffest surface (k_max) with ``delay_steps`` periods of delay: the force
-    stays within 0.2 N of f_d after 2 s."""
+    """
+    4 s on the stiffest surface (k_max) with ``delay_steps`` periods of delay.
+
+    The force stays within 0.2 N of f_d after 2 s.
+    """
     r = run_scenario(ScenarioConfig(k=6000.0, delay_steps=delay_steps, duration=4.0,
                                     overrides=overrides))
     f = (r.f_true_W @ r.n_W)[r.t > 2.0]

@@ -1,4 +1,5 @@
-"""Oracle tests of ``hybrid_force_controller.core.robot_model`` (pinocchio path).
+"""
+Oracle tests of ``hybrid_force_controller.core.robot_model`` (pinocchio path).
 
 * The bundled 2-link arm against the paper's closed form, eqs. (30)-(37) of [1] with the
   errata fixed (``test/closed_form_2link.py``), at random non-singular states.
@@ -205,8 +206,11 @@ def test_jacobian_dot_matches_finite_difference(arm_and_states):
 
 @pytest.mark.parametrize('terms', ['task_terms', 'joint_terms'])
 def test_skew_symmetry(arm_and_states, terms):
-    """Mdot - 2 C is skew-symmetric, eq. (3), in task space (M_x, C_x) and in joint space
-    (Mdot by central difference along qdot)."""
+    """
+    Mdot - 2 C is skew-symmetric, eq. (3), in task space (M_x.
+
+    C_x) and in joint space (Mdot by central difference along qdot).
+    """
     model, states = arm_and_states
     inertia_and_coriolis = getattr(model, terms)
     h = 1e-6

@@ -42,8 +42,11 @@ def _t(stamp) -> float:
 
 
 class _Watcher(Node):
-    """True normal force (sim/contact_wrench), efforts, the controller's /diagnostics; and a
-    500 Hz timer that publishes ``self.inject()`` between the real messages while set."""
+    """
+    True normal force (sim/contact_wrench), efforts, the controller's /diagnostics.
+
+    And a 500 Hz timer that publishes ``self.inject()`` between the real messages while set.
+    """
 
     def __init__(self, context) -> None:
         super().__init__('fault_watcher', context=context)
@@ -136,8 +139,9 @@ def run_until(w: _Watcher, t: float) -> None:
 
 
 def settled_at(w: _Watcher, t0: float, hold: float = 0.5) -> float:
-    """The first time after ``t0`` from which the force stayed within TOL of f_d for
-    ``hold`` s (waits for it; fails after 20 s of stamps)."""
+    """
+    The first time after ``t0`` from which the force stayed within TOL of f_d for ``hold`` s (waits for it; fails after 20 s of stamps).
+    """
     def found() -> float | None:
         ft = w.forces(t0)
         if ft.size == 0:
@@ -215,8 +219,11 @@ def test_nan_and_partial_joint_states_between_the_real_ones(rig):
 
 
 def test_surface_drop_of_3_cm(rig):
-    """Contact regained by the approach (2.5 cm/s: 1.2 s for 3 cm), impact below 5 f_d.
-    Last: the surface stays lower."""
+    """
+    Contact regained by the approach (2.5 cm/s: 1.2 s for 3 cm), impact below 5 f_d.
+
+    Last: the surface stays lower.
+    """
     t0 = settled_at(rig, rig.now)
     set_sim(rig, surface_point=(P0 + 0.03 * N_W).tolist())
     t_drop = rig.now

@@ -1,4 +1,5 @@
-"""Contact recovery and sensor plausibility (issue 10), offline through the loop engine.
+"""
+Contact recovery and sensor plausibility (issue 10), offline through the loop engine.
 
 The runtime (the node's own logic) runs against the simulated arm with the real-time
 timing model of this machine (``TimingModel.ros_measured``, fixed seeds) and the masses
@@ -51,8 +52,12 @@ def recovery_time(result, t_end: float, tol: float = 0.05) -> float:
 # ------------------------------------------------------------------ approach
 @pytest.mark.parametrize('scale,k', [(0.5, 1700.0), (1.5, 1700.0), (0.5, 6000.0)])
 def test_surface_drop_of_3_cm_is_regained_within_1_5_s(scale, k):
-    """Targets: contact back within 1.5 s, impact peak <= 5 f_d, force RMS over t >= 12 s
-    <= 0.05 N. At 2.5 cm/s the 3 cm take 1.2 s; the old law crept at c lambda1 f_d."""
+    """
+    Targets: contact back within 1.5 s, impact peak <= 5 f_d.
+
+    Force RMS over t >= 12 s <= 0.05 N. At 2.5 cm/s the 3 cm take 1.2 s; the old law crept at c
+    lambda1 f_d.
+    """
     r = run(16.0, scale, k, events=[Event(8.0, move_surface(0.03))])
     after = r.t >= 8.0
     lost = np.flatnonzero(after & ~r.in_contact)
@@ -66,8 +71,12 @@ def test_surface_drop_of_3_cm_is_regained_within_1_5_s(scale, k):
 
 
 def test_approach_speed_is_bounded():
-    """While approaching, the tool moves into the surface at no more than approach_speed
-    (+ 20 % for the reference's position error and the timing noise)."""
+    """
+    While approaching.
+
+    The tool moves into the surface at no more than approach_speed (+ 20 % for the reference's
+    position error and the timing noise).
+    """
     r = run(10.5, 1.0, events=[Event(8.0, move_surface(0.03))])
     window = (r.t > 8.2) & (r.t < 9.0)
     x_n = r.x_W[window] @ r.n_W
@@ -77,8 +86,11 @@ def test_approach_speed_is_bounded():
 
 
 def test_no_surface_within_the_approach_limit_stops_and_reports():
-    """The surface drops 10 cm (beyond approach_limit = 5 cm): the arm stops after 5 cm,
-    holds, and says so; a parameter set searches again and finds it."""
+    """
+    The surface drops 10 cm (beyond approach_limit = 5 cm).
+
+    The arm stops after 5 cm, holds, and says so; a parameter set searches again and finds it.
+    """
     rearm = Event(13.0, lambda rt, _plant: rt.set_params(rt.validate({'approach_limit': 0.08})))
     r = run(18.0, 1.0, events=[Event(8.0, move_surface(0.10)), rearm])
     x_n = r.x_W @ r.n_W
@@ -103,9 +115,12 @@ def test_status_names_the_approach_limit():
 
 
 def test_hand_over_to_the_force_loop_is_bumpless():
-    """Around the re-contact after a drop, the effort changes by no more than 1 N m per
-    tick (a hand-over that only kept r continuous, without rdot, stepped by 10 N m: the
-    approach's rdot feeds M rdot)."""
+    """
+    Around the re-contact after a drop.
+
+    The effort changes by no more than 1 N m per tick (a hand-over that only kept r continuous,
+    without rdot, stepped by 10 N m: the approach's rdot feeds M rdot).
+    """
     r = run(10.0, 1.0, events=[Event(8.0, move_surface(0.01))])
     running = np.array([m == Mode.RUNNING for m in r.mode])
     i_run = np.flatnonzero((r.t > 8.05) & running)[0]  # the hand-over
@@ -134,8 +149,12 @@ def fault_hook(kind: str):
 @pytest.mark.parametrize('kind,counter', [('burst', 'wrench_implausible'), ('frozen', None),
                                           ('nan_state', 'joint_state_dropped')])
 def test_fault_phase_safe_mode_and_recovery(kind, counter):
-    """1 s of 1e4 N readings, a frozen sensor, or NaN joint states: safe mode (the inputs
-    are stale), bounded force, and the force back within 0.05 N of f_d within 2 s."""
+    """
+    1 s of 1e4 N readings, a frozen sensor, or NaN joint states.
+
+    Safe mode (the inputs are stale), bounded force, and the force back within 0.05 N of f_d within
+    2 s.
+    """
     r = run(12.0, input_hook=fault_hook(kind))
     during = (r.t >= T0 + 0.15) & (r.t < T1)
     assert all(m == Mode.SAFE for m, d in zip(r.mode, during) if d)
@@ -148,8 +167,11 @@ def test_fault_phase_safe_mode_and_recovery(kind, counter):
 
 
 def test_burst_between_real_samples_never_reaches_the_loop():
-    """1e4 N readings between the real ones are dropped: the run is identical (bit for
-    bit, lockstep) to the clean run, only the counter differs."""
+    """
+    1e4 N readings between the real ones are dropped.
+
+    The run is identical (bit for bit, lockstep) to the clean run, only the counter differs.
+    """
     outs = {}
     for burst in (False, True):
         model = RobotModel.from_urdf()

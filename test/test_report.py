@@ -58,7 +58,8 @@ def array_msg(values, label: str) -> object:
 
 
 def synthetic_messages(skip=(), true_force=False, header_t0_ns=T0_NS, theta_label='m1,m2'):
-    """(topic, log_ns, msg) of a run with known errors.
+    """
+    (topic, log_ns, msg) of a run with known errors.
 
     Tangential error 1 mm (plus a 2 mm error along n, which must not count); normal force
     error ``0.2 sin(2 pi t)`` N; contact lost for t in [2.0, 2.5); theta_hat -> (1.3, 0.5).
@@ -90,8 +91,11 @@ def synthetic_messages(skip=(), true_force=False, header_t0_ns=T0_NS, theta_labe
 
 
 def write_bag(path: Path, drop=(), silence=(), true_force=False, messages=None) -> Path:
-    """Bag of :func:`synthetic_messages`; ``drop``: topics not even declared, ``silence``:
-    topics declared without messages."""
+    """
+    Bag of :func:`synthetic_messages`; ``drop``.
+
+    Topics not even declared, ``silence``: topics declared without messages.
+    """
     topics = [(t, typ) for t, typ in RECORD_TOPICS if t not in drop]
     with BagWriter(path, topics) as writer:
         for topic, log_ns, msg in (messages if messages is not None
@@ -141,8 +145,11 @@ def test_load_run_signals(good_bag):
 
 
 def test_sim_time_stamps_with_wall_clock_log_times_and_default_names(tmp_path):
-    """Header stamps in sim time (from 0) while the recorder logs wall time: the headerless
-    theta_hat is aligned on log times, the stamped topics on header stamps."""
+    """
+    Header stamps in sim time (from 0) while the recorder logs wall time.
+
+    The headerless theta_hat is aligned on log times, the stamped topics on header stamps.
+    """
     bag = write_bag(tmp_path / 'simtime', messages=list(
         synthetic_messages(header_t0_ns=0, theta_label='')))
     log = load_run(bag)

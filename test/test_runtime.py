@@ -1,5 +1,8 @@
-"""ControllerRuntime (what the controller node does between messages), driven by arrays
-from the offline plant: input handling, safe mode, output order and a short closed loop.
+"""
+ControllerRuntime (what the controller node does between messages).
+
+Driven by arrays from the offline plant: input handling, safe mode, output order and a short closed
+loop.
 
 Closed loops go through the loop engine (engine.py, lockstep timing, one tick per plant
 step), as scenario.py does: the plant starts at the paper's pose touching the surface
@@ -32,9 +35,12 @@ def model() -> RobotModel:
 
 
 class Loop:
-    """Runtime + plant at 1 kHz through the loop engine; ``step(feed)`` runs one period
-    (the plant's state reaches the runtime only when ``feed``) and returns the runtime's
-    output and the measurement it was computed from."""
+    """
+    Runtime + plant at 1 kHz through the loop engine.
+
+    ``step(feed)`` runs one period (the plant's state reaches the runtime only when ``feed``) and
+    returns the runtime's output and the measurement it was computed from.
+    """
 
     def __init__(self, model: RobotModel, **overrides) -> None:
         self.model = model
@@ -223,8 +229,12 @@ def test_closed_loop_through_runtime_tracks_the_sine(model):
 
 @pytest.fixture(scope='module')
 def outage(model):
-    """Track until 3 s, then no inputs for 150 ms (the plant keeps running under the
-    runtime's effort), then inputs resume for 50 ms."""
+    """
+    Track until 3 s.
+
+    Then no inputs for 150 ms (the plant keeps running under the runtime's effort), then inputs
+    resume for 50 ms.
+    """
     loop = Loop(model)
     t_stop, t_resume = 3.0, 3.15
     rows = []
@@ -252,10 +262,13 @@ def test_stale_inputs_enter_safe_mode_once(model, outage):
 
 
 def test_safe_mode_does_not_accelerate_the_arm(model, outage):
-    """Safe mode is documented as gravity compensation + damping. With stale inputs the
-    damping term must not turn into a push: the tool speed at the end of the outage is
-    not larger than when the inputs stopped (+0.05 m/s: what the 1 N contact force,
-    no longer compensated, gives the ~2 kg arm in 50 ms, with margin)."""
+    """
+    Safe mode is documented as gravity compensation + damping.
+
+    With stale inputs the damping term must not turn into a push: the tool speed at the end of the
+    outage is not larger than when the inputs stopped (+0.05 m/s: what the 1 N contact force, no
+    longer compensated, gives the ~2 kg arm in 50 ms, with margin).
+    """
     _, rows = outage
     speed = {round(r[0], 6): float(np.linalg.norm(r[4])) for r in rows}
     v_stop, v_end = speed[3.0], speed[3.15]
@@ -264,11 +277,13 @@ def test_safe_mode_does_not_accelerate_the_arm(model, outage):
 
 
 def test_resume_returns_to_running_without_torque_jump(model, outage):
-    """Bound: 10 N m = 10 % of the effort limit (about 5 N at the 2 m tool). The laws
-    differ at one state by the contact feed-forward J^T f (<= 2 N m at f_d = 1 N) and by
-    k_d times the velocity mismatch built up in 50 ms of safe mode (a few N m); a restart
-    that "does not jump" stays below that. In steady tracking one tick changes the
-    effort by ~0.01 N m."""
+    """
+    Bound: 10 N m = 10 % of the effort limit (about 5 N at the 2 m tool).
+
+    The laws differ at one state by the contact feed-forward J^T f (<= 2 N m at f_d = 1 N) and by
+    k_d times the velocity mismatch built up in 50 ms of safe mode (a few N m); a restart that
+    "does not jump" stays below that. In steady tracking one tick changes the effort by ~0.01 N m.
+    """
     loop, rows = outage
     i = next(k for k, r in enumerate(rows) if r[0] >= 3.15 - DT / 2)
     last_safe, first_run = rows[i - 1], rows[i]

@@ -1,5 +1,9 @@
-"""Live changes in the runtime: parameter sets, held references, clock restarts and
-safe mode keep the effort continuous (no jumps, no stale state)."""
+"""
+Live changes in the runtime.
+
+Parameter sets, held references, clock restarts and safe mode keep the effort continuous (no jumps,
+no stale state).
+"""
 from __future__ import annotations
 
 import numpy as np

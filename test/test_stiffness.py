@@ -1,7 +1,11 @@
-"""Online stiffness estimate (core/stiffness.py): unit tests on synthetic data. Fixed seeds.
+"""
+Online stiffness estimate (core/stiffness.py): unit tests on synthetic data.
+
+Fixed seeds.
 
 The estimate in the closed loop (runtime, law, parameters, margin, targets) is tested in
-test_stiffness_loop.py, the recording and report in test_stiffness_tools.py."""
+test_stiffness_loop.py, the recording and report in test_stiffness_tools.py.
+"""
 from __future__ import annotations
 
 import math
@@ -56,8 +60,9 @@ def test_exact_recovery_noise_free(k, filter_hz):
 
 
 def test_filter_lag_biases_unless_x_is_filtered_alike():
-    """(S0): feeding a 50 Hz-filtered force with the filter switched off in the estimator
-    (x_n unfiltered) biases k_hat; with the matching filter it is exact."""
+    """
+    (S0): feeding a 50 Hz-filtered force with the filter switched off in the estimator (x_n unfiltered) biases k_hat; with the matching filter it is exact.
+    """
     data = synthetic(1700.0, hz=10.0, filter_hz=50.0)  # omega tau = 0.2: |H| cos(phase) = 0.96
     matched, unmatched = make(force_filter_hz=50.0), make(force_filter_hz=0.0)
     feed(matched, *data)
@@ -80,8 +85,11 @@ def test_converges_with_force_noise(k, seed):
 
 
 def test_valid_needs_twenty_exciting_samples():
-    """A perfect fit of a few large steps has a small standard deviation, but (S6) also
-    asks for 20 effective samples before k_s may follow."""
+    """
+    A perfect fit of a few large steps has a small standard deviation.
+
+    But (S6) also asks for 20 effective samples before k_s may follow.
+    """
     est = make(force_filter_hz=0.0)
     x_n = X0 + 1e-3 * np.arange(30)
     for i, x in enumerate(x_n):
@@ -105,8 +113,12 @@ def test_bounded_to_k_min_k_max_and_near_flag(k, expected, near):
 
 
 def test_a_saturated_estimate_is_not_valid_and_k_s_does_not_follow_it_down():
-    """Held at k_min by the projection, k_hat is a bound, not an estimate: not valid, and
-    k_s (which falls only to a valid estimate) stays; the excitation test falls back to k_max."""
+    """
+    Held at k_min by the projection, k_hat is a bound, not an estimate.
+
+    Not valid, and k_s (which falls only to a valid estimate) stays; the excitation test falls back
+    to k_max.
+    """
     est = make(k_min=50.0, force_filter_hz=0.0)
     f_n, x_n = synthetic(20.0, f_lo=0.2, f_hi=1.0, filter_hz=0.0)
     feed(est, f_n, x_n)
@@ -118,8 +130,11 @@ def test_a_saturated_estimate_is_not_valid_and_k_s_does_not_follow_it_down():
 
 
 def test_forget_data_learns_a_new_surface_and_keeps_k_s():
-    """A long loading on one surface outweighs a short one on another for several T_f;
-    forget_data (e.g. on a new contact) restarts the regression from the current k_hat."""
+    """
+    A long loading on one surface outweighs a short one on another for several T_f.
+
+    Forget_data (e.g. on a new contact) restarts the regression from the current k_hat.
+    """
     est = make()
     f_n, x_n = synthetic(300.0)
     feed(est, f_n, x_n)
@@ -149,8 +164,12 @@ def settled(k: float = 1700.0, **kw) -> tuple[StiffnessEstimator, float, float]:
 
 
 def test_no_drift_without_excitation():
-    """100 s of constant f and x: nothing moves, bit for bit (no forgetting, (S5)); with
-    the change test (S9) off, not even when the force no longer fits."""
+    """
+    100 s of constant f and x.
+
+    Nothing moves, bit for bit (no forgetting, (S5)); with the change test (S9) off, not even when
+    the force no longer fits.
+    """
     est, f, x = settled(change_force=0.0)
     before = (est.k_hat, est.k_hat_std, est.samples_used, est.valid)
     for f_const in (f, f + 0.5):  # consistent with the fit, then not
@@ -161,10 +180,9 @@ def test_no_drift_without_excitation():
 
 @pytest.mark.parametrize('jump, detect_ms', [(0.5, 14), (5.0, 1), (-0.5, 14)])
 def test_a_lasting_misfit_is_a_change_of_the_surface(jump, detect_ms):
-    """(S9): the force leaves the fitted line at constant x (k or x0 changed under the
-    tool): detected once (|eps| - 0.2 N) dt sums to 0.2 N x 20 ms; the fit restarts from
-    the prior and the k_s command jumps up to k_s0; noise (sigma 0.05 N, filtered) on
-    100 s of a consistent force never triggers it."""
+    """
+    (S9): the force leaves the fitted line at constant x (k or x0 changed under the tool): detected once (|eps| - 0.2 N) dt sums to 0.2 N x 20 ms; the fit restarts from the prior and the k_s command jumps up to k_s0; noise (sigma 0.05 N, filtered) on 100 s of a consistent force never triggers it.
+    """
     est, f, x = settled(1700.0)
     ks_series(est, 5000)
     rng = np.random.default_rng(5)
@@ -182,8 +200,11 @@ def test_a_lasting_misfit_is_a_change_of_the_surface(jump, detect_ms):
 
 
 def test_noise_below_the_dead_zone_does_not_move_the_estimate():
-    """Steady tracking: f noisy (sigma 0.05 N), x jittering by 0.01 N / k: frozen. With
-    the dead zone off (excitation = 0) the same data makes k_hat wander, so the test can fail."""
+    """
+    Steady tracking: f noisy (sigma 0.05 N), x jittering by 0.01 N / k: frozen.
+
+    With the dead zone off (excitation = 0) the same data makes k_hat wander, so the test can fail.
+    """
     rng = np.random.default_rng(3)
     frozen, wandering = settled(1700.0), settled(1700.0, excitation=0.0, time_constant=0.5)
     for est, f, x in (frozen, wandering):
@@ -199,8 +220,11 @@ def test_noise_below_the_dead_zone_does_not_move_the_estimate():
 
 
 def test_out_of_contact_samples_are_ignored():
-    """Garbage out of contact (huge force, far position) changes nothing: the estimate is
-    bit-identical to the run without those samples."""
+    """
+    Garbage out of contact (huge force, far position) changes nothing.
+
+    The estimate is bit-identical to the run without those samples.
+    """
     f_n, x_n = synthetic(500.0)
     clean, dirty = make(force_filter_hz=0.0), make(force_filter_hz=0.0)
     feed(clean, f_n, x_n)
@@ -330,9 +354,12 @@ def test_prior_is_k_hat0_or_the_configured_k_s_clipped():
 
 
 def test_reconfigure_keeps_the_estimate_unless_prior_or_bounds_change():
-    """Settings that only act on later samples keep the data: the estimate continues
-    exactly as one never reconfigured; a new prior restarts from it, new bounds from the
-    clipped k_hat; the k_s command is kept in every case."""
+    """
+    Settings that only act on later samples keep the data.
+
+    The estimate continues exactly as one never reconfigured; a new prior restarts from it, new
+    bounds from the clipped k_hat; the k_s command is kept in every case.
+    """
     f_n, x_n = synthetic(500.0)
     a, b = make(), make()
     feed(a, f_n[:1500], x_n[:1500])

@@ -1,6 +1,9 @@
-"""Issue 13 targets: the controller learns the surface in the closed loop (paper scenario
-through the loop engine, masses 50 % off via theta_hat0_scale 0.5 / 1.5, 2 periods of
-delay unless the real-time timing model is used). Fixed seeds; 8-13 s runs.
+"""
+Issue 13 targets.
+
+The controller learns the surface in the closed loop (paper scenario through the loop engine,
+masses 50 % off via theta_hat0_scale 0.5 / 1.5, 2 periods of delay unless the real-time timing
+model is used). Fixed seeds; 8-13 s runs.
 
     k in {300, 500, 1700, 5000} N/m: |k_hat - k| <= 10 % k within 2 s of the first contact
     (3 s under TimingModel.ros_measured), force error <= 0.02 N RMS and position error
@@ -37,8 +40,11 @@ def t_contact(res: ScenarioResult) -> float:
 
 
 def time_within(res: ScenarioResult, tol: float) -> float:
-    """Time from the first contact until k_hat enters k (1 +- tol) for good; an unknown
-    (NaN) estimate counts as outside; inf: never."""
+    """
+    Time from the first contact until k_hat enters k (1 +- tol) for good.
+
+    An unknown (NaN) estimate counts as outside; inf: never.
+    """
     outside = np.flatnonzero(~(np.abs(res.k_hat - res.k_true) <= tol * res.k_true))
     if outside.size == 0:
         return 0.0
@@ -87,8 +93,11 @@ def test_with_force_noise_the_estimate_stays_within_15_percent(model, k):
 @pytest.mark.parametrize('scale', SCALES)
 @pytest.mark.parametrize('k', STIFFNESSES)
 def test_under_the_real_time_timing_model_the_estimate_converges(model, k, scale):
-    """Latency, jitter, stalls of 1-30 ms (TimingModel.ros_measured): the state's dt
-    varies and some states are late; within 10 % within 3 s all the same."""
+    """
+    Latency, jitter, stalls of 1-30 ms (TimingModel.ros_measured).
+
+    The state's dt varies and some states are late; within 10 % within 3 s all the same.
+    """
     res = run(model, k, scale, duration=8.0, delay_steps=0,
               timing=TimingModel.ros_measured(seed=int(k) + int(10 * scale)))
     assert time_within(res, 0.10) <= 3.0
@@ -96,8 +105,11 @@ def test_under_the_real_time_timing_model_the_estimate_converges(model, k, scale
 
 
 def test_steady_tracking_does_not_move_the_estimate(model):
-    """After the loading the motion along n stays inside the dead zone (S5): over t >= 5 s
-    k_hat is frozen even with force noise (no drift, no forgetting)."""
+    """
+    After the loading the motion along n stays inside the dead zone (S5).
+
+    Over t >= 5 s k_hat is frozen even with force noise (no drift, no forgetting).
+    """
     res = run(model, 1700.0, 0.5, duration=10.0, noise_sigma=0.05, seed=3)
     steady = res.k_hat[res.t >= 5.0]
     assert np.all(np.isfinite(steady)) and np.ptp(steady) == 0.0
@@ -106,10 +118,13 @@ def test_steady_tracking_does_not_move_the_estimate(model):
 @pytest.mark.parametrize('k0, k1', [(1700.0, 3000.0), (3000.0, 1700.0), (5000.0, 300.0),
                                     (300.0, 5000.0)])
 def test_a_surface_that_changes_under_the_tool_is_learned_again(model, k0, k1):
-    """k changes in contact at t = 6 s (the sim's surface swapped, x0 kept): the misfit
-    is detected (S9), k_s returns to 6000 and falls to the new estimate; without (S9)
-    the old and new data gave a 'valid' 889 N/m for 3000 N/m. 300 -> 5000 N/m throws
-    the tool off with or without the estimate (measured 0.22 s and 0.14 s lost)."""
+    """
+    k changes in contact at t = 6 s (the sim's surface swapped, x0 kept).
+
+    The misfit is detected (S9), k_s returns to 6000 and falls to the new estimate; without (S9)
+    the old and new data gave a 'valid' 889 N/m for 3000 N/m. 300 -> 5000 N/m throws the tool off
+    with or without the estimate (measured 0.22 s and 0.14 s lost).
+    """
     def swap(rt, plant):
         plant.surface = dataclasses.replace(plant.surface, k=k1)
     res = run(model, k0, 0.5, duration=10.0, events=[Event(6.0, swap)])
@@ -123,8 +138,12 @@ def test_a_surface_that_changes_under_the_tool_is_learned_again(model, k0, k1):
 
 
 def test_without_the_change_test_old_and_new_data_give_a_wrong_valid_estimate(model):
-    """Negative control of (S9): 1700 -> 3000 N/m with stiffness_change_force = 0 ends
-    with a 'valid' estimate of 955 N/m (k/k_s = 3.1, near where the loop breaks)."""
+    """
+    Negative control of (S9).
+
+    1700 -> 3000 N/m with stiffness_change_force = 0 ends with a 'valid' estimate of 955 N/m (k/k_s
+    = 3.1, near where the loop breaks).
+    """
     def swap(rt, plant):
         plant.surface = dataclasses.replace(plant.surface, k=3000.0)
     res = run(model, 1700.0, 0.5, duration=10.0, events=[Event(6.0, swap)],
@@ -134,8 +153,12 @@ def test_without_the_change_test_old_and_new_data_give_a_wrong_valid_estimate(mo
 
 
 def test_a_parameter_set_keeps_the_estimate_in_the_loop(model):
-    """runtime.set_params (f_d, an estimator rate) at t = 3 s: the estimate, its validity
-    and the k_s in use are the same right after; a new prior makes it unknown."""
+    """
+    runtime.set_params (f_d, an estimator rate) at t = 3 s.
+
+    The estimate, its validity and the k_s in use are the same right after; a new prior makes it
+    unknown.
+    """
     seen = []
     def set_(values):
         def action(rt, plant):
@@ -155,8 +178,9 @@ def test_a_parameter_set_keeps_the_estimate_in_the_loop(model):
 
 # ---------------------------------------------------------------- force step
 def step_run(model, k, extra=None, duration=13.0) -> float:
-    """2 % settling time of the true force after f_d 1 -> 2 N at t = 10 s (a parameter
-    set through an Event), masses 50 % low, 2 periods of delay."""
+    """
+    2 % settling time of the true force after f_d 1 -> 2 N at t = 10 s (a parameter set through an Event), masses 50 % low, 2 periods of delay.
+    """
     theta0 = (model.theta_nominal * 0.5).tolist()
     values = {'theta_hat0': theta0, **(extra or {})}
     set_f_d = Event(10.0, lambda rt, plant: rt.set_params(rt.validate({**values, 'f_d': 2.0})))
@@ -184,23 +208,33 @@ def test_force_step_settles_alike_at_500_and_5000_with_the_estimate(steps):
 
 
 def test_force_step_is_much_slower_at_500_without_the_estimate(steps):
-    """k_s = 6000 fixed: damping 0.24 at 500 N/m, measured 4.38 s (10x); at 5000 N/m the
-    fixed controller is as fast (0.450 s)."""
+    """
+    k_s = 6000 fixed.
+
+    Damping 0.24 at 500 N/m, measured 4.38 s (10x); at 5000 N/m the fixed controller is as fast
+    (0.450 s).
+    """
     assert steps['off 500'] > 5.0 * steps['on 500'], steps
     assert steps['off 5000'] <= 1.3 * steps['on 5000'], steps
 
 
 def test_k_s_alone_without_the_lambda2_rescale_does_not_equalise_the_step(steps):
-    """k_s = k = 500 with lambda2 = 0.1 (the literal k_s := k_hat): the normal loop is
-    s^2 + lambda1 s + lambda2 k, overdamped (slow pole 1.3 rad/s), measured 0.641 s, more
-    than the +-30 % band around the 5000 N/m step: lambda2 must scale with 1/k_s."""
+    """
+    k_s = k = 500 with lambda2 = 0.1 (the literal k_s := k_hat).
+
+    The normal loop is s^2 + lambda1 s + lambda2 k, overdamped (slow pole 1.3 rad/s), measured
+    0.641 s, more than the +-30 % band around the 5000 N/m step: lambda2 must scale with 1/k_s.
+    """
     assert steps['k_s alone 500'] > 1.3 * steps['on 5000'], steps
 
 
 # ---------------------------------------------------------------- why k_s falls only to a valid estimate
 def fixed_k_s_run(model, k, k_s) -> dict:
-    """The estimate off, the law's k_s forced to k_s from t = 0 (set_k_s, as the estimate
-    would set it: lambda2 = lambda2_0 k_s0 / k_s)."""
+    """
+    The estimate off, the law's k_s forced to k_s from t = 0 (set_k_s.
+
+    As the estimate would set it: lambda2 = lambda2_0 k_s0 / k_s).
+    """
     force = Event(0.0, lambda rt, plant: rt.ctrl.set_k_s(k_s))
     res = run(model, k, 0.5, duration=8.0, events=[force],
               overrides={'stiffness_estimation': False})
@@ -209,9 +243,11 @@ def fixed_k_s_run(model, k, k_s) -> dict:
 
 
 def test_a_fivefold_underestimate_breaks_the_loop_and_threefold_holds(model):
-    """k_s = k/5: the normal loop's fast pole (k/k_s) lambda1 = 200 rad/s meets the delayed
-    velocity loop; the force oscillates (measured 0.145 N RMS over t >= 5 s, 7x the
-    target). k_s = k/3 holds."""
+    """
+    k_s = k/5: the normal loop's fast pole (k/k_s) lambda1 = 200 rad/s meets the delayed velocity loop; the force oscillates (measured 0.145 N RMS over t >= 5 s, 7x the target).
+
+    k_s = k/3 holds.
+    """
     bad = fixed_k_s_run(model, 5000.0, 1000.0)
     ok = fixed_k_s_run(model, 500.0, 500.0 / 3.0)
     assert bad['rms_force_error_n'] > 0.1, bad

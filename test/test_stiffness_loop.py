@@ -1,7 +1,10 @@
-"""The stiffness estimate in the core: the law's O(1) set_k_s, the parameter group, eq. (29)
-at the estimate, the delay margin over the k_s range, and StiffnessLoop (what the runtime
-runs on every new state). Synthetic data and short loops; the closed-loop targets of
-issue 13 are in test_stiffness_closed_loop.py. Fixed seeds."""
+"""
+The stiffness estimate in the core.
+
+The law's O(1) set_k_s, the parameter group, eq. (29) at the estimate, the delay margin over the
+k_s range, and StiffnessLoop (what the runtime runs on every new state). Synthetic data and short
+loops; the closed-loop targets of issue 13 are in test_stiffness_closed_loop.py. Fixed seeds.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -49,8 +52,11 @@ def r_normal(ctrl: HybridForceController, f_n: float) -> tuple[float, float]:
 
 # ---------------------------------------------------------------- the law
 def test_set_k_s_is_the_law_of_a_gain_set_with_k_s_and_lambda2_rescaled(model):
-    """set_k_s(500) gives the same effort and integration as building the gains with
-    k_s = 500, lambda2 = 0.1 * 6000/500 and the anti-windup bound scaled alike."""
+    """
+    set_k_s(500) gives the same effort and integration as building the gains with k_s = 500.
+
+    lambda2 = 0.1 * 6000/500 and the anti-windup bound scaled alike.
+    """
     fast = HybridForceController(model, law(model))
     full = HybridForceController(model, dataclasses.replace(
         law(model), k_s=500.0, lambda2=1.2, integral_limit=2.0 * 500.0 / 6000.0))
@@ -81,8 +87,12 @@ def test_set_k_s_keeps_lambda2_h_continuous_and_returns_to_the_gains(model):
 
 
 def test_rdot_holds_the_term_of_the_varying_compliance(model):
-    """rdot_n is the derivative of r_n: with k_s ramping at d ln k_s/dt = rho and h held,
-    r_n changes by -dc lambda1 df_n per unit time, which the rdot term supplies."""
+    """
+    rdot_n is the derivative of r_n.
+
+    With k_s ramping at d ln k_s/dt = rho and h held, r_n changes by -dc lambda1 df_n per unit
+    time, which the rdot term supplies.
+    """
     ctrl = HybridForceController(model, law(model))
     f_n, rho, dt = 1.4, -3.0, 1e-4
     ctrl.set_k_s(800.0, 0.0)
@@ -148,8 +158,12 @@ def test_stiffness_values_are_rejected_naming_the_parameter(model, values, name)
 
 
 def test_eq_29_at_the_estimate_is_enforced_only_when_it_is_on(model):
-    """lambda1^2 > 2 lambda2 k_s: with k_s = 8000 > k_max the literal (29) holds (1600 >
-    1200) but the loop at k_s = k_hat would not be damped by 1/sqrt(2) (1600 = 1600)."""
+    """
+    lambda1^2 > 2 lambda2 k_s.
+
+    With k_s = 8000 > k_max the literal (29) holds (1600 > 1200) but the loop at k_s = k_hat would
+    not be damped by 1/sqrt(2) (1600 = 1600).
+    """
     with pytest.raises(ParameterValidationError, match='k_s = k_hat'):
         build_params(model, {'k_s': 8000.0})
     build_params(model, {'k_s': 8000.0, 'stiffness_estimation': False})
@@ -197,8 +211,11 @@ def make_loop(model, **values):
 
 
 def press(loop, ctrl, k, touching=True, offset=0.0, **kw) -> tuple[float, float]:
-    """Feed a synthetic press on a surface of stiffness k as new states (x_n = -y);
-    returns the last (f_n, x_n)."""
+    """
+    Feed a synthetic press on a surface of stiffness k as new states (x_n = -y).
+
+    Returns the last (f_n, x_n).
+    """
     f_n, x_n = synthetic(k, **kw)
     for f, x in zip(f_n, x_n):
         loop.update(ctrl, float(f), np.array([1.0, -(x + offset), 0.0]), DT, DT, touching)
@@ -267,8 +284,12 @@ def test_a_set_keeps_the_estimate_unless_prior_bounds_or_normal_change(model):
 
 
 def test_a_contact_loss_makes_the_surface_unknown_and_k_s_returns(model):
-    """Lifted off: NaN, the fit restarts from the prior, k_s jumps back to k_s0 = 6000
-    (lambda2 h continuous); the next surface (1 cm further, 1200 N/m) is learned alone."""
+    """
+    Lifted off: NaN, the fit restarts from the prior.
+
+    k_s jumps back to k_s0 = 6000 (lambda2 h continuous); the next surface (1 cm further, 1200 N/m)
+    is learned alone.
+    """
     loop, ctrl, _ = make_loop(model)
     last = press(loop, ctrl, 500.0)
     hold(loop, ctrl, *last, 1000)
@@ -301,8 +322,12 @@ def test_a_change_under_the_tool_makes_the_surface_unknown(model):
                                                    (1700.0, 6000.0, False, True),
                                                    (3000.0, 2000.0, True, False)])
 def test_near_k_max_warns_for_a_known_or_saturated_estimate(model, k, k_max, near, known):
-    """(S8) on an estimate, not on the prior; a surface stiffer than k_max holds k_hat at
-    the bound (not valid: reported NaN, k_s stays at k_max) and warns."""
+    """
+    (S8) on an estimate, not on the prior.
+
+    A surface stiffer than k_max holds k_hat at the bound (not valid: reported NaN, k_s stays at
+    k_max) and warns.
+    """
     loop, ctrl, _ = make_loop(model, k_max=k_max, k_s=k_max)
     press(loop, ctrl, k)
     st = loop.status(ctrl)

@@ -1,6 +1,10 @@
-"""The stiffness estimate in the tools: ~/stiffness_estimate in bags (optional topic), the
-RunLog field, the metric ``stiffness_estimate_n_per_m``, fig6_stiffness.png and
-``paper --stiffness-estimation``. Real MCAP bags written with BagWriter (no mocks)."""
+"""
+The stiffness estimate in the tools.
+
+~/stiffness_estimate in bags (optional topic), the RunLog field, the metric
+``stiffness_estimate_n_per_m``, fig6_stiffness.png and ``paper --stiffness-estimation``. Real MCAP
+bags written with BagWriter (no mocks).
+"""
 from __future__ import annotations
 
 import json
@@ -107,8 +111,11 @@ def test_run_log_estimate_nan_means_unknown_and_the_metric_is_the_last_sample(tm
 
 
 def test_paper_with_and_without_the_estimate(tmp_path, capsys):
-    """metrics.json holds the final k_hat either way (the estimate always runs); with it
-    the law's k_s follows it, which at k = 500 shows in the force error."""
+    """
+    metrics.json holds the final k_hat either way (the estimate always runs).
+
+    With it the law's k_s follows it, which at k = 500 shows in the force error.
+    """
     metrics = {}
     for flag in ('--stiffness-estimation', '--no-stiffness-estimation'):
         out = tmp_path / flag

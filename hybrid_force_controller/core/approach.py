@@ -1,4 +1,5 @@
-"""Approach: out of contact, the normal reference moves toward the surface (pure numpy).
+"""
+Approach: out of contact, the normal reference moves toward the surface (pure numpy).
 
 The paper's law regains a lost surface only through ``c lambda1 f_d`` (1/6000 * 40 * 1 N =
 6.7 mm/s) because the force integral is frozen out of contact. Instead, the runtime hands
@@ -36,17 +37,22 @@ class Approach:
         self.a_max = max(speed, 1e-6) / RAMP_S
 
     def start(self, x_n: float, v_n: float) -> None:
-        """Begin at position ``x_n`` (m along n) with velocity ``v_n`` (m/s), taken
-        within ``[0, speed]``."""
+        """
+        Begin at position ``x_n`` (m along n) with velocity ``v_n`` (m/s).
+
+        Taken within ``[0, speed]``.
+        """
         self.x0, self.x, self.exhausted = x_n, x_n, False
         self.v = min(max(v_n, 0.0), self.speed)
 
     def step(self, dt: float, x_n: float) -> ApproachRef:
-        """Advance ``dt`` seconds (>= 0) with the tool at ``x_n``; return the reference.
+        """
+        Advance ``dt`` seconds (>= 0) with the tool at ``x_n``; return the reference.
 
         The reference never leads the tool by more than ``LAG_M`` (5 mm: ``K_D lambda1
         LAG_M`` of force, 12 N with the defaults, to overcome a model error), so a tool
-        held back does not build up a demand that it would release at impact."""
+        held back does not build up a demand that it would release at impact.
+        """
         end = self.x0 + self.limit
         self.x = min(self.x, x_n + LAG_M)
         if self.exhausted:

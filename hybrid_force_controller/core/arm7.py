@@ -1,4 +1,5 @@
-"""The 7-DOF demonstration: a Franka Panda pressing 5 N on a tilted plane (pure core).
+"""
+The 7-DOF demonstration: a Franka Panda pressing 5 N on a tilted plane (pure core).
 
 The end effector (``panda_hand_tcp``) presses ``f_d = 5`` N on a plane tilted 0.3 rad about
 the base x axis while it tracks a 10 cm line on it (``x_d = c + 0.05 sin t`` along x); the

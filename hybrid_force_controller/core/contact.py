@@ -12,16 +12,19 @@ def contact_threshold(f_d: float, minimum: float = CONTACT_FORCE_MIN_N) -> float
 
 
 def in_contact(f_n: float, f_d: float = 0.0, minimum: float = CONTACT_FORCE_MIN_N) -> bool:
-    """Contact from the normal force ``f_n`` the tool exerts (measured or true), N.
+    """
+    Contact from the normal force ``f_n`` the tool exerts (measured or true), N.
 
     The law (anti-windup), the runtime (with hysteresis, :class:`ContactDetector`), the
     offline scenario and the report (``contact_lost_s``, from the true force with
-    ``f_d = 0``) all use this test."""
+    ``f_d = 0``) all use this test.
+    """
     return f_n > contact_threshold(f_d, minimum)
 
 
 class ContactDetector:
-    """Contact with hysteresis on the filtered normal force.
+    """
+    Contact with hysteresis on the filtered normal force.
 
     Contact begins when ``f_n > contact_threshold(f_d)`` and ends once ``f_n`` has stayed
     below half of it for ``dwell`` seconds (noise near the threshold does not chatter,

@@ -1,4 +1,5 @@
-"""The adaptive hybrid force/motion control law of [1], eqs. (5)/(6), (8), (11) and (26).
+"""
+The adaptive hybrid force/motion control law of [1], eqs. (5)/(6), (8), (11) and (26).
 
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
@@ -73,8 +74,11 @@ class ControlError(ValueError):
 
 
 class ApproachRef(NamedTuple):
-    """Normal reference of an approach: position ``x_n = n^T x_ref`` (m), velocity and
-    acceleration along n, base frame."""
+    """
+    Normal reference of an approach.
+
+    Position ``x_n = n^T x_ref`` (m), velocity and acceleration along n, base frame.
+    """
 
     x_n: float
     v_n: float
@@ -82,10 +86,14 @@ class ApproachRef(NamedTuple):
 
 
 class ControlOutput(NamedTuple):
-    """One tick's result: the effort (finite, before the runtime's limits), e (task
-    coordinates, ``model.task_axes``), the kinematics it used, theta_hat after the update,
-    the force integral h, and the normal part of r (m/s) with the mode-specific term of
-    rdot's normal part (m/s^2; the rest of rdot is common to both modes)."""
+    """
+    One tick's result.
+
+    The effort (finite, before the runtime's limits), e (task coordinates, ``model.task_axes``),
+    the kinematics it used, theta_hat after the update, the force integral h, and the normal part
+    of r (m/s) with the mode-specific term of rdot's normal part (m/s^2; the rest of rdot is common
+    to both modes).
+    """
 
     tau: np.ndarray
     e: np.ndarray
@@ -128,7 +136,8 @@ def small_inverse(A: np.ndarray) -> np.ndarray:
 
 def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e: np.ndarray,
                 dt: float, theta_min: np.ndarray, theta_max: np.ndarray) -> np.ndarray:
-    """Adaptation law, eq. (26) of [1], with projection onto a box.
+    """
+    Adaptation law, eq. (26) of [1], with projection onto a box.
 
     ``theta_hat_dot = -Gamma^-1 Y_x^T e``, integrated over ``dt`` (explicit Euler), then
     clipped to ``[theta_min, theta_max]``. With a diagonal Gamma the clip is the
@@ -139,7 +148,8 @@ def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e
 
 
 class HybridForceController:
-    """Adaptive hybrid force/motion controller for one arm model.
+    """
+    Adaptive hybrid force/motion controller for one arm model.
 
     ``set_gains`` swaps the gains atomically (the next ``step`` uses the new set);
     ``step`` computes one command from the latest state.
@@ -170,8 +180,11 @@ class HybridForceController:
         return self._k.lambda2
 
     def set_gains(self, gains: LawGains) -> None:
-        """Install a validated gain set; derived matrices are computed here, once. A k_s
-        set by ``set_k_s`` stays in use (lambda2 follows the new gains' lambda2_0, k_s0)."""
+        """
+        Install a validated gain set; derived matrices are computed here, once.
+
+        A k_s set by ``set_k_s`` stays in use (lambda2 follows the new gains' lambda2_0, k_s0).
+        """
         ax = list(self.model.task_axes)
         n = gains.n[ax]
         if self._d is not None and not np.array_equal(gains.n, self._d.gains.n):
@@ -182,7 +195,8 @@ class HybridForceController:
         self._set_compliance(self._k.override, 0.0, rescale_h=False)
 
     def set_k_s(self, k_s: float | None, log_rate: float = 0.0) -> None:
-        """Use ``k_s`` (N/m, finite > 0; None: the gains' k_s) from the next step on, O(1).
+        """
+        Use ``k_s`` (N/m, finite > 0; None: the gains' k_s) from the next step on, O(1).
 
         ``lambda2 = lambda2_0 k_s0 / k_s``; h is rescaled so that ``lambda2 h`` is
         continuous; ``log_rate = d(ln k_s)/dt`` (1/s) adds the rdot term of the varying
@@ -208,8 +222,12 @@ class HybridForceController:
         k.c_rate = k.c * log_rate
 
     def _linear_part(self, P_t: np.ndarray, n: np.ndarray, l1: float) -> np.ndarray:
-        """G with ``G z = [r; rdot]`` minus their force terms, ``z = (x, xdot, x_d, xdot_d,
-        xddot_d)`` (x, xdot in task coordinates, the reference 3-D): one product per tick."""
+        """
+        G with ``G z = [r; rdot]`` minus their force terms.
+
+        ``z = (x, xdot, x_d, xdot_d, xddot_d)`` (x, xdot in task coordinates, the reference 3-D):
+        one product per tick.
+        """
         m = len(n)
         A = np.eye(3)[list(self.model.task_axes)]  # base frame -> task coordinates
         Z = np.zeros((m, m))
@@ -228,10 +246,13 @@ class HybridForceController:
                            approach: ApproachRef | None = None,
                            r_bias: tuple[float, float] = (0.0, 0.0)
                            ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
-        """r and rdot from eqs. (8) and (11) (scaled form, module docstring), df_n, the
-        normal part of r and the mode-specific part of rdot's. With ``approach`` the normal
-        part tracks that reference instead of the force loop; ``r_bias`` (m/s, m/s^2) is
-        added to them (the runtime's hand-over from an approach)."""
+        """
+        r and rdot from eqs. (8) and (11) (scaled form, module docstring), df_n.
+
+        The normal part of r and the mode-specific part of rdot's. With ``approach`` the normal
+        part tracks that reference instead of the force loop; ``r_bias`` (m/s, m/s^2) is added to
+        them (the runtime's hand-over from an approach).
+        """
         d = self._d
         g, n, m = d.gains, d.n, len(d.n)
         df_n = float(n @ f) - g.f_d
@@ -246,9 +267,12 @@ class HybridForceController:
         return lin[:m] + r_n * n, lin[m:] + rdot_n * n, df_n, r_n, rdot_n
 
     def force_loop_r_n(self, f_n: float) -> tuple[float, float]:
-        """Normal part of r in the force loop, ``-(c lambda1 (f_n - f_d) + lambda2 h)``,
-        and the mode-specific part of rdot's, ``(c_rate lambda1 - lambda2) (f_n - f_d)``
-        (``c_rate``: the rate of change of the compliance, set_k_s)."""
+        """
+        Normal part of r in the force loop, ``-(c lambda1 (f_n - f_d) + lambda2 h)``.
+
+        And the mode-specific part of rdot's, ``(c_rate lambda1 - lambda2) (f_n - f_d)``
+        (``c_rate``: the rate of change of the compliance, set_k_s).
+        """
         g, k = self._d.gains, self._k
         df_n = f_n - g.f_d
         r_n = -(k.c * g.lambda1 * df_n + k.lambda2 * self.h)
@@ -258,7 +282,8 @@ class HybridForceController:
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
              r_bias: tuple[float, float] = (0.0, 0.0),
              kin: TaskKinematics | None = None) -> ControlOutput:
-        """One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
+        """
+        One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
 
         Parameters
         ----------
@@ -272,6 +297,7 @@ class HybridForceController:
         kin : ``model.kinematics(q, qdot)`` when the caller has it already.
 
         Returns ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e)`` (eq. 5 in joint space).
+
         """
         if not (dt >= 0.0 and math.isfinite(dt)):
             raise ControlError(f'dt must be finite and >= 0, got {dt}')
@@ -305,9 +331,11 @@ class HybridForceController:
 
     def _integrate(self, Y_q: np.ndarray, s: np.ndarray, df_n: float, dt: float,
                    force_loop: bool) -> None:
-        """Eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and the force
-        integral h, eq. (20), frozen out of contact (anti-windup) and never holding a
-        retreat (h > 0) there."""
+        """
+        Eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and the force integral h.
+
+        eq. (20), frozen out of contact (anti-windup) and never holding a retreat (h > 0) there.
+        """
         d = self._d
         g = d.gains
         theta = adapt_theta(self.theta_hat, d.Gamma_inv, Y_q, g.k_a * s, dt, g.theta_min,
@@ -320,7 +348,8 @@ class HybridForceController:
             self.h = min(self.h, 0.0)
 
     def _pinv(self, q: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1`` and ``N``.
+        """
+        Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1`` and ``N``.
 
         For redundant arms (joints > task dimension) eqs. (35)-(37) generalise with Jbar in
         place of J^-1: ``qdot_r = Jbar r``, ``qddot_r = Jbar (rdot - Jdot qdot_r)`` (the

@@ -1,4 +1,5 @@
-"""What the runtime does with efforts: the limits every command obeys, and the safe hold.
+"""
+What the runtime does with efforts: the limits every command obeys, and the safe hold.
 
 Pure numpy + pinocchio (through :class:`~.robot_model.RobotModel`).
 """
@@ -12,7 +13,8 @@ __all__ = ['EffortLimiter', 'SafeHold']
 
 
 class EffortLimiter:
-    """Clamp to per-joint effort limits and, optionally, a per-tick rate limit.
+    """
+    Clamp to per-joint effort limits and, optionally, a per-tick rate limit.
 
     Every command the runtime publishes goes through :meth:`__call__`; :meth:`reset`
     forgets the last command (a restart does not rate-limit against a stale one).
@@ -42,7 +44,8 @@ class EffortLimiter:
 
 
 class SafeHold:
-    """Safe-mode effort: hold the arm where it is, adaptation and force loop frozen.
+    """
+    Safe-mode effort: hold the arm where it is, adaptation and force loop frozen.
 
     ``tau = g_hat(q) + J^T f_hold`` (the adapted gravity torque plus the contact force
     latched when safe mode began, so the arm keeps its place against the surface) and, only

@@ -1,4 +1,5 @@
-"""The one loop engine: :class:`~.runtime.ControllerRuntime` against a plant, offline.
+"""
+The one loop engine: :class:`~.runtime.ControllerRuntime` against a plant, offline.
 
 Every offline run (``paper``, ``bench``, the closed-loop tests) goes through
 :func:`run_loop`, so they all exercise the node's own logic (inputs, filter, reference,
@@ -48,8 +49,11 @@ class Event:
 
 @dataclass
 class LoopLog:
-    """Per plant step: time, state, forces (3-D, base frame), reference, effort, theta_hat
-    and the stiffness estimate ``k_hat`` (N/m, NaN while unknown)."""
+    """
+    Per plant step: time, state, forces (3-D, base frame), reference, effort.
+
+    theta_hat and the stiffness estimate ``k_hat`` (N/m, NaN while unknown).
+    """
 
     t: np.ndarray
     x_W: np.ndarray
@@ -88,7 +92,8 @@ class _Channel:
 
 
 class LoopEngine:
-    """Runtime, plant and timing over one horizon; :meth:`step` advances one plant period.
+    """
+    Runtime, plant and timing over one horizon; :meth:`step` advances one plant period.
 
     ``wrench_frame`` is the frame the sensor reports in (default the end effector, like a
     wrist sensor). ``input_hook(t, (q, qdot, F_S))`` may return a corrupted tuple, or None
@@ -122,8 +127,11 @@ class LoopEngine:
         return self.k * self.schedule.period_ns * 1e-9
 
     def step(self) -> Any:
-        """One plant period: publish, controller ticks, plant update. Returns the
-        measurement the plant published at the start of it."""
+        """
+        One plant period: publish, controller ticks, plant update.
+
+        Returns the measurement the plant published at the start of it.
+        """
         sched, P, k = self.schedule, self.schedule.period_ns, self.k
         t_k = k * P
         while self._events and self._events[0].t * 1e9 <= t_k:

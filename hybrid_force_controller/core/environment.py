@@ -1,4 +1,5 @@
-"""Unilateral elastic surface: the environment model of eqs. (12)-(13) of [1].
+"""
+Unilateral elastic surface: the environment model of eqs. (12)-(13) of [1].
 
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
@@ -18,7 +19,8 @@ class SurfaceError(ValueError):
 
 @dataclass(frozen=True)
 class ElasticSurface:
-    """A frictionless elastic plane that pushes but never pulls.
+    """
+    A frictionless elastic plane that pushes but never pulls.
 
     Eqs. (12)-(13) of [1]: ``f = k n n^T (x - x0)`` while the tool is inside the surface
     (``n^T (x - x0) > 0``) and ``f = 0`` otherwise. ``f`` is the force the tool exerts on
@@ -29,6 +31,7 @@ class ElasticSurface:
     k : stiffness k > 0, N/m.
     x0_W : (3,) a point of the undeformed plane, base frame, m.
     n_W : (3,) unit normal pointing into the surface (the direction the tool pushes).
+
     """
 
     k: float
@@ -60,7 +63,8 @@ class ElasticSurface:
 
 
 def sensor_wrench_from_f_W(R_W_ee: np.ndarray, f_W: np.ndarray) -> np.ndarray:
-    """Force the environment exerts on the tool, in the end-effector frame: ``-R^T f_W``.
+    """
+    Force the environment exerts on the tool, in the end-effector frame: ``-R^T f_W``.
 
     This is what a wrist force/torque sensor reports (ROS convention of
     force_torque_sensor_broadcaster: the external wrench acting on the sensor frame).

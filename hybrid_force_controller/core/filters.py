@@ -9,7 +9,8 @@ __all__ = ['LowPassFilter']
 
 
 class LowPassFilter:
-    """First-order low-pass filter in the manner of control_toolbox's LowPassFilter.
+    """
+    First-order low-pass filter in the manner of control_toolbox's LowPassFilter.
 
     ``y_k = y_{k-1} + a (u_k - y_{k-1})`` with ``a = 1 - exp(-2 pi f_c dt)``. It starts
     from the first finite sample (no transient from zero) and skips non-finite samples,
@@ -39,7 +40,8 @@ class LowPassFilter:
         self._dt = self._a = -1.0
 
     def update(self, u: np.ndarray, dt: float) -> bool:
-        """Filter one sample taken ``dt`` seconds after the previous one.
+        """
+        Filter one sample taken ``dt`` seconds after the previous one.
 
         Returns False (and keeps the state) when ``u`` holds NaN/Inf.
         """

@@ -1,4 +1,5 @@
-"""The controller's inputs as typed records, checked at the boundary (pure numpy).
+"""
+The controller's inputs as typed records, checked at the boundary (pure numpy).
 
 :class:`JointInput` maps a joint state by name onto the model's joints (the index map is
 cached per name list, so a steady stream costs no lookups). :class:`WrenchGate` decides
@@ -24,8 +25,11 @@ class InputError(ValueError):
 
 
 class ImplausibleWrench(InputError):
-    """A well-formed wrench reading that cannot be physical (too large, or changing too
-    fast); a saturated sensor looks the same."""
+    """
+    A well-formed wrench reading that cannot be physical (too large, or changing too fast).
+
+    A saturated sensor looks the same.
+    """
 
 
 class JointSample(NamedTuple):

@@ -7,7 +7,8 @@ __all__ = ['LoopStats']
 
 
 class LoopStats:
-    """Ring buffer of callback start times and compute durations, seconds.
+    """
+    Ring buffer of callback start times and compute durations, seconds.
 
     ``record(t_start, t_end)`` once per callback with any monotonic clock; ``summary()``
     gives the period and compute-time percentiles over the last ``size`` callbacks.
@@ -25,8 +26,11 @@ class LoopStats:
         self._k += 1
 
     def summary(self) -> dict[str, float]:
-        """``rate_hz``, ``period_p50_ms``, ``period_p99_ms``, ``compute_p50_ms``,
-        ``compute_p99_ms`` and ``samples`` (NaN where there is too little data)."""
+        """
+        ``rate_hz``, ``period_p50_ms``, ``period_p99_ms``, ``compute_p50_ms``.
+
+        ``compute_p99_ms`` and ``samples`` (NaN where there is too little data).
+        """
         n = min(self._k, self._start.size)
         if n < 3:
             nan = float('nan')

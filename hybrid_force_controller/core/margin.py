@@ -1,4 +1,5 @@
-"""Delay margin of the closed loop: how much loop delay the gains tolerate (pure numpy).
+"""
+Delay margin of the closed loop: how much loop delay the gains tolerate (pure numpy).
 
 A real-time loop between two processes delays every measurement by tau (state stamp to
 effort applied). Linearised about a steady state with the model known, each task axis
@@ -79,8 +80,11 @@ def _stable_without_delay(num: np.ndarray, den: np.ndarray) -> bool:
 
 def axis_margin(g: LawGains, m: float, K_I: float, k: float | None = None,
                 filter_hz: float = 0.0) -> float:
-    """Delay margin (s) of one task axis of mass ``m`` (kg): along the surface when ``k``
-    is None, else along n against a surface of stiffness ``k`` (N/m)."""
+    """
+    Delay margin (s) of one task axis of mass ``m`` (kg).
+
+    Along the surface when ``k`` is None, else along n against a surface of stiffness ``k`` (N/m).
+    """
     l1, l2, kd, c = g.lambda1, g.lambda2, g.k_d, 1.0 / g.k_s
     wf = 2.0 * math.pi * filter_hz if filter_hz > 0.0 else math.inf
     F = [1.0] if math.isinf(wf) else [1.0 / wf, 1.0]  # denominator of the filter
@@ -116,8 +120,12 @@ def _axis_gains(model: RobotModel, g: LawGains, q: np.ndarray
 
 def estimate_operating_points(g: LawGains, stiffness: StiffnessConfig
                               ) -> list[tuple[LawGains, float]]:
-    """(gains with the k_s and lambda2 the law would use, surface k) over the k_s the
-    stiffness estimate may command (module docstring); empty when it is off."""
+    """
+    (gains with the k_s and lambda2 the law would use.
+
+    Surface k) over the k_s the stiffness estimate may command (module docstring); empty when it is
+    off.
+    """
     if not stiffness.enabled:
         return []
     lo, hi = min(stiffness.k_min, g.k_s), max(stiffness.k_max, g.k_s)
@@ -132,10 +140,13 @@ def estimate_operating_points(g: LawGains, stiffness: StiffnessConfig
 def delay_margin(model: RobotModel, g: LawGains, q: np.ndarray, filter_hz: float = 0.0,
                  k_values: tuple[float, ...] | None = None,
                  stiffness: StiffnessConfig | None = None) -> float:
-    """Worst delay margin (s) at configuration ``q`` over the task inertia's extreme
-    eigenvalues, both axes, and surface stiffnesses ``k_values`` (default k_max and
-    fractions of it); with an enabled ``stiffness`` config also over the k_s the
-    estimate may command (:func:`estimate_operating_points`)."""
+    """
+    Worst delay margin (s) at configuration ``q`` over the task inertia's extreme eigenvalues.
+
+    Both axes, and surface stiffnesses ``k_values`` (default k_max and fractions of it); with an
+    enabled ``stiffness`` config also over the k_s the estimate may command
+    (:func:`estimate_operating_points`).
+    """
     M_x, K_I, n = _axis_gains(model, g, q)
     masses = np.linalg.eigvalsh(M_x)
     ks = k_values or (g.k_max, 0.3 * g.k_max, 0.1 * g.k_max)

@@ -22,9 +22,12 @@ class Mode(str, Enum):
 
 @dataclass
 class TickOutput:
-    """One tick for the node to publish (3-D vectors in the base frame; ``tau`` in the
-    order of ``params.runtime.joints``, None while waiting; ``k_hat`` the stiffness
-    estimate, N/m, NaN while unknown)."""
+    """
+    One tick for the node to publish (3-D vectors in the base frame.
+
+    ``tau`` in the order of ``params.runtime.joints``, None while waiting; ``k_hat`` the stiffness
+    estimate, N/m, NaN while unknown).
+    """
 
     tau: np.ndarray | None
     mode: Mode

@@ -1,4 +1,5 @@
-"""Adaptive parameter sets theta, all mapped onto pinocchio's inertial parameters.
+"""
+Adaptive parameter sets theta, all mapped onto pinocchio's inertial parameters.
 
 Pinocchio's ``computeJointTorqueRegressor`` is linear in the 10 inertial parameters of every
 body, ``pi_j = [m, m c, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz]`` (inertia about the joint

@@ -1,4 +1,5 @@
-"""The one parameter schema of the controller, its validation and the frozen parameters.
+"""
+The one parameter schema of the controller, its validation and the frozen parameters.
 
 Every parameter has a type, a default, a description and bounds here; the ROS node
 declares them from :data:`CONTROLLER_SCHEMA` and ``config/*.yaml`` only overrides values.
@@ -30,9 +31,12 @@ class ParameterValidationError(ValueError):
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: ROS type (``double``, ``integer``, ``double_array``, ``string_array``,
-    ``string``, ``bool``), default, description, closed bounds (``None``: unbounded) and
-    the group it configures (``law``, ``runtime`` or ``stiffness``)."""
+    """
+    One parameter: ROS type (``double``, ``integer``, ``double_array``, ``string_array``.
+
+    ``string``, ``bool``), default, description, closed bounds (``None``: unbounded) and the group
+    it configures (``law``, ``runtime`` or ``stiffness``).
+    """
 
     name: str
     kind: str
@@ -229,8 +233,11 @@ class RuntimeConfig:
 
 @dataclass(frozen=True)
 class ControllerParams:
-    """One validated, frozen parameter set: the law's gains, the runtime's configuration
-    and the stiffness estimate's."""
+    """
+    One validated, frozen parameter set.
+
+    The law's gains, the runtime's configuration and the stiffness estimate's.
+    """
 
     law: LawGains
     runtime: RuntimeConfig
@@ -243,7 +250,8 @@ def schema_defaults() -> dict[str, Any]:
 
 
 def check_stability(lambda1: float, lambda2: float, k_max: float) -> None:
-    """Eq. (29) of [1]: require ``lambda1^2 > 2 lambda2 k_max``.
+    """
+    Eq. (29) of [1]: require ``lambda1^2 > 2 lambda2 k_max``.
 
     Raises :class:`ParameterValidationError` stating both sides when it fails.
     """
@@ -255,8 +263,10 @@ def check_stability(lambda1: float, lambda2: float, k_max: float) -> None:
 
 
 def check_stability_estimated(lambda1: float, lambda2: float, k_s: float) -> None:
-    """Eq. (29) at the operating point of the stiffness estimate: ``lambda1^2 > 2 lambda2
-    k_s``, lambda2 and k_s the configured ones.
+    """
+    Eq. (29) at the operating point of the stiffness estimate.
+
+    ``lambda1^2 > 2 lambda2 k_s``, lambda2 and k_s the configured ones.
 
     With ``k_s := k_hat`` and ``lambda2 k_s`` held (control_law.py) the normal loop on a
     surface k is ``hddot + (k/k_hat) lambda1 hdot + lambda2 k_s (k/k_hat) h = 0``; (28)
@@ -384,10 +394,11 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
 
 
 def build_params(model: Any, values: Mapping[str, Any] | None = None) -> ControllerParams:
-    """Validate a set of values (missing ones take the defaults) against the schema and
-    ``model`` (a :class:`~.robot_model.RobotModel`: joints, task axes, parameter set, URDF
-    effort limits) and freeze it. Raises :class:`ParameterValidationError` with the reason
-    on the first problem."""
+    """
+    Validate a set of values (missing ones take the defaults) against the schema and ``model`` (a :class:`~.robot_model.RobotModel`: joints, task axes, parameter set, URDF effort limits) and freeze it.
+
+    Raises :class:`ParameterValidationError` with the reason on the first problem.
+    """
     values = {} if values is None else values
     unknown = set(values) - set(_SPECS)
     if unknown:

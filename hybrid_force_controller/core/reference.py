@@ -35,7 +35,8 @@ class SineReference:
 
 def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
                 offset_vel_W: np.ndarray | None = None) -> Reference:
-    """Start the reference where the arm is (and as fast) and blend into ``ref``.
+    """
+    Start the reference where the arm is (and as fast) and blend into ``ref``.
 
     ``x_ref = x_d + H0(s) dp + t_blend H1(s) dv`` with ``s = t / t_blend`` and the quintic
     Hermite basis ``H0 = 1 - 10 s^3 + 15 s^4 - 6 s^5``, ``H1 = s - 6 s^3 + 8 s^4 - 3 s^5``:
@@ -61,7 +62,8 @@ def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
 
 
 class BlendedReference:
-    """The desired motion of a run: the sine or a held point, blended smoothly on changes.
+    """
+    The desired motion of a run: the sine or a held point, blended smoothly on changes.
 
     Times ``tau`` are seconds since the run started. :meth:`start_from` makes the reference
     begin at the arm's position and velocity; :meth:`switch` changes the base (sine

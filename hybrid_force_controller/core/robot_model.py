@@ -1,4 +1,5 @@
-"""Rigid-body model of the arm on pinocchio: task-space terms and the regressor.
+"""
+Rigid-body model of the arm on pinocchio: task-space terms and the regressor.
 
 Everything here is pure numpy + pinocchio. Reference [1] is Jafari et al., "An Adaptive
 Hybrid Force/Motion Control Design for Robot Manipulators Interacting in Constrained
@@ -38,7 +39,8 @@ def default_urdf_path() -> Path:
 
 
 class TaskKinematics(NamedTuple):
-    """End-effector kinematics at one state.
+    """
+    End-effector kinematics at one state.
 
     Attributes
     ----------
@@ -48,6 +50,7 @@ class TaskKinematics(NamedTuple):
     xdot : (m,) task velocity, x_dot = J q_dot.
     J_ee : (m, n) task Jacobian, eq. (31) of [1].
     Jdot_ee : (m, n) its time derivative along q_dot.
+
     """
 
     p_W: np.ndarray
@@ -59,7 +62,8 @@ class TaskKinematics(NamedTuple):
 
 
 class RobotModel:
-    """A serial arm from a URDF, with an adaptive parameter set (parameter_sets.py).
+    """
+    A serial arm from a URDF, with an adaptive parameter set (parameter_sets.py).
 
     The default set is the paper's ``link_masses``: one mass per link, each link keeping
     its nominal geometry; for the paper's arm ``theta = [m1, m2]``. Task coordinates are
@@ -106,7 +110,8 @@ class RobotModel:
                   base_link: str | None = None, joints: Sequence[str] | None = None,
                   gravity_root: Sequence[float] | None = None,
                   parameter_set: str = 'link_masses') -> 'RobotModel':
-        """Load a URDF file path or URDF XML string (``None``: the paper's 2-link arm).
+        """
+        Load a URDF file path or URDF XML string (``None``: the paper's 2-link arm).
 
         ``joints`` selects the controlled joints (the others are locked at their neutral
         position clipped into their limits). ``gravity_root`` is in the URDF root frame; the
@@ -166,7 +171,8 @@ class RobotModel:
 
     # ------------------------------------------------------------------ per-tick terms
     def kinematics(self, q: np.ndarray, qdot: np.ndarray) -> TaskKinematics:
-        """Task position, velocity, Jacobian and its derivative, eqs. (30)-(31) of [1].
+        """
+        Task position, velocity, Jacobian and its derivative, eqs. (30)-(31) of [1].
 
         Uses pinocchio's ``computeJointJacobiansTimeVariation`` in the LOCAL_WORLD_ALIGNED
         frame, whose linear rows are d p_W / dq and their time derivative.
@@ -184,7 +190,8 @@ class RobotModel:
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:
-        """Joint-space regressor: Y_q theta = M(q) qddot_r + C(q, qdot) qdot_r + g(q).
+        """
+        Joint-space regressor: Y_q theta = M(q) qddot_r + C(q, qdot) qdot_r + g(q).
 
         Eq. (4) of [1] in joint space with a reference velocity (Slotine-Li form). C is the
         Christoffel matrix, so C(q, v) w = b(v, w) with b the symmetric bilinear velocity
@@ -196,7 +203,8 @@ class RobotModel:
 
     def regressor_affine(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                          qddot_r: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """``(Y_q, tau_0)`` with ``Y_q theta + tau_0 = M qddot_r + C qdot_r + g``.
+        """
+        ``(Y_q, tau_0)`` with ``Y_q theta + tau_0 = M qddot_r + C qdot_r + g``.
 
         ``tau_0 = R pi_0`` is the torque of the known part of the model (None when the set
         has no known part, e.g. ``link_masses``).
@@ -213,7 +221,8 @@ class RobotModel:
 
     def joint_terms(self, q: np.ndarray, qdot: np.ndarray,
                     theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """M(q), C(q, qdot) (Christoffel) and g(q), eqs. (32)-(34) of [1] (corrected).
+        """
+        M(q), C(q, qdot) (Christoffel) and g(q), eqs. (32)-(34) of [1] (corrected).
 
         Computed from the regressor so that they hold for any theta (default nominal):
         column k of C is b(qdot, e_k).
@@ -231,7 +240,8 @@ class RobotModel:
 
     def task_terms(self, q: np.ndarray, qdot: np.ndarray,
                    theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """M_x, C_x and g_x of eqs. (35)-(37) of [1], corrected.
+        """
+        M_x, C_x and g_x of eqs. (35)-(37) of [1], corrected.
 
         ``M_x = J^-T M J^-1``, ``C_x = J^-T (C - M J^-1 Jdot) J^-1``, ``g_x = J^-T g``.
         (The paper prints J^T in (35) and ends (36) in J; see docs/errata.md.)
@@ -246,7 +256,8 @@ class RobotModel:
 
     def regressor_x(self, q: np.ndarray, qdot: np.ndarray, r: np.ndarray,
                     rdot: np.ndarray) -> np.ndarray:
-        """Task-space regressor of eq. (6): Y_x theta = M_x rdot + C_x r + g_x.
+        """
+        Task-space regressor of eq. (6): Y_x theta = M_x rdot + C_x r + g_x.
 
         With qdot_r = J^-1 r and qddot_r = J^-1 (rdot - Jdot qdot_r):
         ``Y_x = J^-T Y_q(q, qdot, qdot_r, qddot_r)``.
@@ -259,8 +270,11 @@ class RobotModel:
 
     def base_from_root(self, p: np.ndarray, R: np.ndarray, J: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Position, rotation and (3 x n) Jacobian of a frame, from the URDF root frame
-        into ``base_link``."""
+        """
+        Position, rotation and (3 x n) Jacobian of a frame.
+
+        From the URDF root frame into ``base_link``.
+        """
         if self._R_W_root is None:
             return p, R, J
         R_W_root = self._R_W_root

@@ -1,4 +1,5 @@
-"""What the controller node does between messages, as plain arrays (no rclpy here).
+"""
+What the controller node does between messages, as plain arrays (no rclpy here).
 
 The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
 converts the result back; the offline engine (engine.py) drives the same object. The
@@ -49,8 +50,12 @@ __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
 @dataclass
 class _Clock:
-    """The run's times, s: ``t0`` the stamp of its first state (the reference's origin),
-    the latest tick, and the stamp of the state the last integration used."""
+    """
+    The run's times, s.
+
+    ``t0`` the stamp of its first state (the reference's origin), the latest tick, and the stamp of
+    the state the last integration used.
+    """
 
     t0: float | None = None
     t_tick: float = -math.inf
@@ -101,10 +106,12 @@ class ControllerRuntime:
         return self._params.runtime.joints
 
     def validate(self, values: dict[str, Any]) -> ControllerParams:
-        """Full set of parameter values -> ControllerParams (ParameterValidationError).
+        """
+        Full set of parameter values -> ControllerParams (ParameterValidationError).
 
         Beyond the schema, the gains must leave a delay margin (margin.py) of at least
-        ``min_delay_margin`` at the arm's latest pose (unchecked before the first state)."""
+        ``min_delay_margin`` at the arm's latest pose (unchecked before the first state).
+        """
         params = build_params(self.model, values)
         need = params.runtime.min_delay_margin
         margin = self.delay_margin(params)
@@ -116,8 +123,11 @@ class ControllerRuntime:
         return params
 
     def delay_margin(self, params: ControllerParams | None = None) -> float:
-        """Loop delay the gains tolerate at the latest pose, s (margin.py; inf before the
-        first joint state or at a singular pose)."""
+        """
+        Loop delay the gains tolerate at the latest pose, s (margin.py.
+
+        Inf before the first joint state or at a singular pose).
+        """
         params = params or self._params
         if self._state is None:
             return math.inf
@@ -128,7 +138,8 @@ class ControllerRuntime:
             return math.inf
 
     def set_params(self, params: ControllerParams) -> None:
-        """Install a validated set atomically; it takes effect on the next tick.
+        """
+        Install a validated set atomically; it takes effect on the next tick.
 
         A new filter cut-off keeps the filtered force; a new reference (``ref_*``, ``n``,
         ``ref_blend_time``) releases a held point and blends from the current reference;
@@ -190,9 +201,11 @@ class ControllerRuntime:
         raise exc
 
     def on_reference(self, x_d_W: Sequence[float]) -> None:
-        """Hold a user reference point (base frame) instead of the sine, blended in.
+        """
+        Hold a user reference point (base frame) instead of the sine, blended in.
 
-        Any later change of a ``ref_*`` parameter (or ``n``) releases it."""
+        Any later change of a ``ref_*`` parameter (or ``n``) releases it.
+        """
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
@@ -220,8 +233,11 @@ class ControllerRuntime:
         return self._contact.active
 
     def stiffness_status(self) -> StiffnessStatus:
-        """The stiffness estimate and the k_s / lambda2 in use, for /diagnostics (WARN when
-        ``near_k_max``)."""
+        """
+        The stiffness estimate and the k_s / lambda2 in use.
+
+        For /diagnostics (WARN when ``near_k_max``).
+        """
         return self._stiffness.status(self.ctrl)
 
     def desired_position(self, t: float) -> np.ndarray:
@@ -282,8 +298,11 @@ class ControllerRuntime:
         return ''
 
     def _state_step(self) -> tuple[float, float]:
-        """Time since the state the last integration used (0 if none is new), and the part
-        of it theta_hat and h integrate (at most ``max_integration_dt``)."""
+        """
+        Time since the state the last integration used (0 if none is new).
+
+        And the part of it theta_hat and h integrate (at most ``max_integration_dt``).
+        """
         c, t = self._clock, self._state.t
         if t <= c.t_used:
             self.counters['stale_ticks'] += 1
@@ -318,9 +337,12 @@ class ControllerRuntime:
             self.mode = Mode.RUNNING
 
     def _handover_bias(self) -> tuple[float, float]:
-        """Bumpless hand-over from an approach: what the approach demanded of r and rdot
-        along n fades into the force loop's with a cosine over HANDOVER_S (r and rdot stay
-        continuous, so the effort does; no integral wind-up)."""
+        """
+        Bumpless hand-over from an approach.
+
+        What the approach demanded of r and rdot along n fades into the force loop's with a cosine
+        over HANDOVER_S (r and rdot stay continuous, so the effort does; no integral wind-up).
+        """
         t_c, dr, drdot = self._handover
         s = (self._state.t - t_c) / HANDOVER_S
         if self.mode != Mode.RUNNING or s >= 1.0:
@@ -345,8 +367,9 @@ class ControllerRuntime:
         return ref
 
     def restart_clock(self) -> None:
-        """Forget the inputs after a backward time jump and start as after power-up
-        (keeping theta_hat; the force integral and the rate limiter restart)."""
+        """
+        Forget the inputs after a backward time jump and start as after power-up (keeping theta_hat; the force integral and the rate limiter restart).
+        """
         self.counters['clock_restarts'] += 1
         self._state = self._wrench = None
         self._gate.reset()
@@ -358,8 +381,11 @@ class ControllerRuntime:
         self.ctrl.reset(self.ctrl.theta_hat)
 
     def restart(self) -> None:
-        """Start again from the arm's state on the next tick (after a deactivation):
-        the reference re-blends, the force integral and the rate limiter restart."""
+        """
+        Start again from the arm's state on the next tick (after a deactivation).
+
+        The reference re-blends, the force integral and the rate limiter restart.
+        """
         self.mode = Mode.WAITING
         self._limiter.reset()
         self.ctrl.h = 0.0

@@ -1,4 +1,5 @@
-"""Closed loop of controller and plant, offline: the paper's scenario (section V of [1]).
+"""
+Closed loop of controller and plant, offline: the paper's scenario (section V of [1]).
 
 Pure numpy + pinocchio. The runtime (the node's own logic) runs against the simulated arm
 through the one loop engine (engine.py) with a timing model: by default the ideal
@@ -28,7 +29,8 @@ PAPER_Q0 = (0.657, 0.913)
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    """The paper's scenario by default: k = 1700 N/m, 20 s, q(0) = (0.657, 0.913).
+    """
+    The paper's scenario by default: k = 1700 N/m, 20 s, q(0) = (0.657, 0.913).
 
     The surface passes through the tool's start position (touching, zero force), with
     normal ``n`` (into the surface). ``theta_hat0_scale`` (one factor or one per
@@ -54,10 +56,13 @@ class ScenarioConfig:
 
 @dataclass(kw_only=True)
 class ScenarioResult(LoopLog):
-    """The engine's log of one run plus what the analysis needs: contact (the one
-    predicate on the true force), the normal, the true parameters, the simulated
-    surface's k (``k_true``; the log's ``k_hat`` is the controller's estimate, NaN while
-    unknown) and the runtime."""
+    """
+    The engine's log of one run plus what the analysis needs.
+
+    Contact (the one predicate on the true force), the normal, the true parameters, the simulated
+    surface's k (``k_true``; the log's ``k_hat`` is the controller's estimate, NaN while unknown)
+    and the runtime.
+    """
 
     in_contact: np.ndarray
     n_W: np.ndarray
@@ -73,8 +78,11 @@ class ScenarioResult(LoopLog):
 
 def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
                  clock_ns: Callable[[], int] | None = None) -> ScenarioResult:
-    """Run the closed loop for ``cfg.duration`` seconds and return its time series
-    (``clock_ns``: see :func:`~.engine.run_loop`)."""
+    """
+    Run the closed loop for ``cfg.duration`` seconds and return its time series (``clock_ns``.
+
+    See :func:`~.engine.run_loop`).
+    """
     model = RobotModel.from_urdf() if model is None else model
     theta0 = model.theta_nominal * np.asarray(cfg.theta_hat0_scale, dtype=float)
     params = build_params(model, {'theta_hat0': theta0.tolist(), **cfg.overrides})

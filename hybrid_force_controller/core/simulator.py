@@ -1,4 +1,5 @@
-"""Offline plant: rigid-body arm (pinocchio ABA) against the elastic surface.
+"""
+Offline plant: rigid-body arm (pinocchio ABA) against the elastic surface.
 
 The same plant runs inside the ``sim`` node. Pure numpy + pinocchio; the caller passes
 ``dt`` and the joint efforts, nothing reads a clock.
@@ -25,7 +26,8 @@ class SimulatorError(ValueError):
 
 
 class Measurement(NamedTuple):
-    """What the arm's sensors report after a step.
+    """
+    What the arm's sensors report after a step.
 
     ``f_W`` is the force the tool exerts on the surface in the base frame as the wrist
     sensor measures it (with noise when configured); ``f_true_W`` is the noise-free value;
@@ -44,7 +46,8 @@ class Measurement(NamedTuple):
 
 
 class ArmSimulator:
-    """Semi-implicit Euler integration with ``substeps`` per control period.
+    """
+    Semi-implicit Euler integration with ``substeps`` per control period.
 
     Each sub-step: contact force from the surface, eqs. (12)-(13) of [1], mapped to the
     joints by ``-J_p^T f``, optional viscous + Coulomb joint friction (off by default),
@@ -73,8 +76,11 @@ class ArmSimulator:
         self._pin_model, self._pin_data = model.model, model.data
 
     def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:
-        """Contact force on the surface, its joint torque ``-J_p^T f`` and the tool pose,
-        all in ``base_link`` (the frame of ``_W`` quantities)."""
+        """
+        Contact force on the surface, its joint torque ``-J_p^T f`` and the tool pose.
+
+        All in ``base_link`` (the frame of ``_W`` quantities).
+        """
         m, d, fid = self._pin_model, self._pin_data, self.model.frame_id
         J = pin.computeFrameJacobian(m, d, q, fid, _LWA)[:3]
         T_root_ee = pin.updateFramePlacement(m, d, fid)

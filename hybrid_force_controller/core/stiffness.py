@@ -1,4 +1,5 @@
-"""Online estimate of the surface stiffness k along n, from the contact model (12)-(13) of [1].
+"""
+Online estimate of the surface stiffness k along n, from the contact model (12)-(13) of [1].
 
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
@@ -85,8 +86,10 @@ _NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'change_force',
 
 @dataclass(frozen=True)
 class StiffnessConfig:
-    """Validated settings of :class:`StiffnessEstimator` (symbols of the module docstring;
-    the schema names are in ``params.py``, group ``stiffness``).
+    """
+    Validated settings of :class:`StiffnessEstimator` (symbols of the module docstring.
+
+    The schema names are in ``params.py``, group ``stiffness``).
 
     Attributes
     ----------
@@ -105,6 +108,7 @@ class StiffnessConfig:
     change_force : delta_c of (S9), N (0: no change test).
     regularisation : rho of (S3)-(S4); force_floor : sigma floor of (S6), N.
     force_filter_hz : cut-off of the caller's force filter, Hz (0: none), for (S0).
+
     """
 
     enabled: bool = True
@@ -157,7 +161,8 @@ class StiffnessConfig:
 
 
 class StiffnessEstimator:
-    """Recursive estimate of the surface stiffness, eqs. (S0)-(S8) of the module docstring.
+    """
+    Recursive estimate of the surface stiffness, eqs. (S0)-(S8) of the module docstring.
 
     Call :meth:`update` once per new state with the filtered normal force and the tool
     position along ``n``, then :meth:`k_s_command` for the value to use as k_s.
@@ -172,8 +177,9 @@ class StiffnessEstimator:
 
     # ------------------------------------------------------------------ state
     def reset(self, k_hat0: float | None = None) -> None:
-        """Forget all data; restart from ``k_hat0`` (default: the config's prior) for
-        k_hat and k_s."""
+        """
+        Forget all data; restart from ``k_hat0`` (default: the config's prior) for k_hat and k_s.
+        """
         k0 = self.config.prior if k_hat0 is None else float(k_hat0)
         self._x_f: float | None = None  # x_n through the force filter (S0)
         self.forget_data(k0)
@@ -184,8 +190,10 @@ class StiffnessEstimator:
         self.samples_used = self.samples_rejected = self.restarts = self.changes = 0
 
     def forget_data(self, k_prior: float | None = None, *, restart_filter: bool = False) -> None:
-        """Restart the regression (S2)-(S6) from the prior ``k_prior`` (default: the current
-        k_hat); the k_s command, the counters and (unless ``restart_filter``, for a new
+        """
+        Restart the regression (S2)-(S6) from the prior ``k_prior`` (default.
+
+        The current k_hat); the k_s command, the counters and (unless ``restart_filter``, for a new
         normal) the filter (S0) are kept.
 
         For a new contact, when the surface may have changed: the information of a long
@@ -208,14 +216,18 @@ class StiffnessEstimator:
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
 
     def restart(self) -> None:
-        """The surface is unknown again (contact lost, or a change (S9)): the fit restarts
-        from the prior, the k_s command jumps to ``max(k_s, k_s0)``."""
+        """
+        The surface is unknown again (contact lost, or a change (S9)).
+
+        The fit restarts from the prior, the k_s command jumps to ``max(k_s, k_s0)``.
+        """
         self.forget_data(self.config.prior)
         self._k_s, self.k_s_log_rate = max(self._k_s, self.config.k_s0), 0.0
         self.restarts += 1
 
     def reconfigure(self, config: StiffnessConfig) -> None:
-        """Install new settings, keeping the estimate where they allow it.
+        """
+        Install new settings, keeping the estimate where they allow it.
 
         A new prior (``k_hat0``), new bounds or a new ``k_max`` restart the regression
         from the current k_hat (clipped; the prior if ``k_hat0`` changed); every other
@@ -231,8 +243,11 @@ class StiffnessEstimator:
             self.forget_data(min(max(k_hat, config.k_min), config.k_max))
 
     def set_k_s_command(self, k_s: float) -> None:
-        """Restart the k_s command (S7) from ``k_s``, N/m (e.g. the k_s in use when the
-        estimate is switched on)."""
+        """
+        Restart the k_s command (S7) from ``k_s``, N/m (e.g.
+
+        the k_s in use when the estimate is switched on).
+        """
         if not (isinstance(k_s, (int, float)) and math.isfinite(k_s) and k_s > 0.0):
             raise StiffnessError(f'k_s must be finite and > 0, got {k_s!r}')
         self._k_s, self.k_s_log_rate = float(k_s), 0.0
@@ -279,7 +294,8 @@ class StiffnessEstimator:
         return self._dt_cache
 
     def update(self, f_n: float, x_n: float, dt: float, in_contact: bool) -> float:
-        """Feed one sample; return k_hat (N/m).
+        """
+        Feed one sample; return k_hat (N/m).
 
         Parameters
         ----------
@@ -292,6 +308,7 @@ class StiffnessEstimator:
 
         Non-finite ``f_n`` / ``x_n`` are ignored and counted (``samples_rejected``).
         Raises :class:`StiffnessError` on a bad ``dt`` or a non-numeric sample.
+
         """
         _, lam, alpha, a = self._factors(dt)
         self.excited, self.excitation_n = False, 0.0
@@ -359,9 +376,12 @@ class StiffnessEstimator:
 
     # ------------------------------------------------------------------ k_s
     def k_s_command(self, dt: float) -> float:
-        """Advance and return the k_s command (S7), N/m: down to a valid k_hat, up to any
-        (a command outside ``[k_min, k_max]``, e.g. after new bounds, moves into them).
-        Disabled: held."""
+        """
+        Advance and return the k_s command (S7), N/m.
+
+        Down to a valid k_hat, up to any (a command outside ``[k_min, k_max]``, e.g. after new
+        bounds, moves into them). Disabled: held.
+        """
         self._factors(dt)
         c = self.config
         k_hat, k_s = self.k_hat, self._k_s

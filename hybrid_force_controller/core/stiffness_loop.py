@@ -1,4 +1,5 @@
-"""The online stiffness estimate in the runtime: the controller learns the surface (issue 13).
+"""
+The online stiffness estimate in the runtime: the controller learns the surface (issue 13).
 
 :class:`StiffnessLoop` is what :class:`~.runtime.ControllerRuntime` runs on every new joint
 state after the control law: it feeds the estimator (stiffness.py, (S0)-(S8)) with the
@@ -63,7 +64,8 @@ class StiffnessLoop:
 
     def configure(self, config: StiffnessConfig, n_W: np.ndarray,
                   ctrl: HybridForceController) -> None:
-        """Install a parameter set, after ``ctrl.set_gains``.
+        """
+        Install a parameter set, after ``ctrl.set_gains``.
 
         The estimate is kept unless the prior (``stiffness_k_hat0``: a restart from it),
         the bounds (``k_min``, ``k_max``: a restart from the clipped k_hat) or the normal
@@ -88,9 +90,11 @@ class StiffnessLoop:
 
     def update(self, ctrl: HybridForceController, f_n: float, p_W: np.ndarray,
                dt_state: float, dt_int: float, touching: bool) -> None:
-        """One new state: (S0)-(S6) on ``(f_n, n^T p_W)`` over ``dt_state`` (s, > 0), then
-        (enabled) the k_s command (S7) over ``dt_int`` (s, > 0: the time the law
-        integrates, bounded after a gap) into the law.
+        """
+        One new state: (S0)-(S6) on ``(f_n, n^T p_W)`` over ``dt_state`` (s, > 0).
+
+        Then (enabled) the k_s command (S7) over ``dt_int`` (s, > 0: the time the law integrates,
+        bounded after a gap) into the law.
 
         ``f_n`` is the filtered normal force (N), ``p_W`` the tool position of the state
         (base frame, m), ``touching`` the runtime's contact state.

@@ -1,4 +1,5 @@
-"""Timing model of a real-time loop between two processes over DDS (for engine.py).
+"""
+Timing model of a real-time loop between two processes over DDS (for engine.py).
 
 A :class:`TimingModel` says how late things happen: one-way message latency (a fixed part
 plus an exponential extra), controller compute time, timer lateness, and stalls of either
@@ -31,7 +32,8 @@ class Stall:
 
 @dataclass(frozen=True)
 class TimingModel:
-    """Delays and gaps of the loop; the defaults are ideal (no latency, no stalls).
+    """
+    Delays and gaps of the loop; the defaults are ideal (no latency, no stalls).
 
     Attributes
     ----------
@@ -47,6 +49,7 @@ class TimingModel:
         their log-uniform durations, s.
     stalls : scheduled stalls.
     seed : seed of every random draw.
+
     """
 
     period: float = 1e-3
@@ -78,9 +81,12 @@ class TimingModel:
 
     @classmethod
     def ros_measured(cls, seed: int = 0, **overrides: Any) -> 'TimingModel':
-        """Two rclpy processes on this 2-core machine (docs/results.md): 0.1-0.4 ms per
-        message, 0.2 ms compute, timer lateness, and stalls of 1-30 ms a few times a second
-        in each process (scheduler, garbage collector, other load)."""
+        """
+        Two rclpy processes on this 2-core machine (docs/results.md).
+
+        0.1-0.4 ms per message, 0.2 ms compute, timer lateness, and stalls of 1-30 ms a few times a
+        second in each process (scheduler, garbage collector, other load).
+        """
         base = dict(latency=1e-4, latency_jitter=1e-4, compute=2e-4, tick_phase=5e-4,
                     tick_jitter=1e-4, stall_rate_hz=4.0, stall_s=(1e-3, 30e-3), seed=seed)
         return cls(**{**base, **overrides})

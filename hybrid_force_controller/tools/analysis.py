@@ -1,4 +1,5 @@
-"""Run logs and tracking metrics of the hybrid force/motion controller.
+"""
+Run logs and tracking metrics of the hybrid force/motion controller.
 
 Pure numpy: a :class:`RunLog` holds every signal of one run on a common time base (the
 stamps of the end-effector position topic) and :func:`compute_metrics` reduces it to the
@@ -30,12 +31,14 @@ class AnalysisError(ValueError):
 
 
 def _as_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarray:
-    """Return ``value`` as a finite float array of ``shape`` (``None``: any length).
+    """
+    Return ``value`` as a finite float array of ``shape`` (``None``: any length).
 
     Raises
     ------
     AnalysisError
         Wrong number of dimensions, wrong size or a non-finite entry.
+
     """
     try:
         arr = np.array(value, dtype=float)  # a private copy, frozen below
@@ -53,7 +56,8 @@ def _as_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarra
 
 @dataclass(frozen=True)
 class RunLog:
-    """All signals of one run, sampled on the stamps of the position topic.
+    """
+    All signals of one run, sampled on the stamps of the position topic.
 
     Attributes
     ----------
@@ -80,6 +84,7 @@ class RunLog:
         yet valid). None when the run did not record it.
     k_true : float, optional
         The surface's true stiffness [N/m] when known (simulation).
+
     """
 
     t: np.ndarray
@@ -112,12 +117,14 @@ class RunLog:
 
 
 def _validated_fields(log: RunLog) -> dict[str, Any]:
-    """Check every field of ``log`` and return the coerced values by name.
+    """
+    Check every field of ``log`` and return the coerced values by name.
 
     Raises
     ------
     AnalysisError
         On the first invalid field.
+
     """
     t = _as_array('t', log.t, (None,))
     n = t.shape[0]
@@ -171,7 +178,8 @@ def _estimate(value: Any, n: int) -> np.ndarray:
 
 
 def align(t_query: np.ndarray, t_src: np.ndarray, y_src: np.ndarray) -> np.ndarray:
-    """Resample ``y_src`` onto ``t_query`` by zero-order hold.
+    """
+    Resample ``y_src`` onto ``t_query`` by zero-order hold.
 
     Each query takes the latest source sample stamped at or before it; queries earlier
     than the first source sample take the first sample (the signal is held backwards).
@@ -194,6 +202,7 @@ def align(t_query: np.ndarray, t_src: np.ndarray, y_src: np.ndarray) -> np.ndarr
     ------
     AnalysisError
         Empty source, mismatched lengths or unsorted source stamps.
+
     """
     t_q = np.asarray(t_query, dtype=float)
     t_s = np.asarray(t_src, dtype=float)
@@ -208,12 +217,14 @@ def align(t_query: np.ndarray, t_src: np.ndarray, y_src: np.ndarray) -> np.ndarr
 
 
 def tangential_error(log: RunLog) -> np.ndarray:
-    """Norm of the position error projected on the surface, ``|(I - n n^T)(x - x_d)|``.
+    """
+    Norm of the position error projected on the surface, ``|(I - n n^T)(x - x_d)|``.
 
     Returns
     -------
     numpy.ndarray, shape (N,)
         Tangential position error [m] at every sample.
+
     """
     n = log.n_W
     e_W = log.x_W - log.x_d_W
@@ -222,19 +233,22 @@ def tangential_error(log: RunLog) -> np.ndarray:
 
 
 def normal_force_error(log: RunLog) -> np.ndarray:
-    """Signed normal force error ``n^T (f - f_d)``; uses ``f_true_W`` when it is known.
+    """
+    Signed normal force error ``n^T (f - f_d)``; uses ``f_true_W`` when it is known.
 
     Returns
     -------
     numpy.ndarray, shape (N,)
         Normal force error [N] at every sample.
+
     """
     f_W = log.f_W if log.f_true_W is None else log.f_true_W
     return (f_W - log.f_d_W) @ log.n_W
 
 
 def contact_lost_time(log: RunLog, t_start: float = -math.inf) -> float:
-    """Total time out of contact after the first contact sample (and after ``t_start``).
+    """
+    Total time out of contact after the first contact sample (and after ``t_start``).
 
     Sample ``i`` lasts ``t[i+1] - t[i]`` (zero-order hold); the last sample lasts zero.
     A run that never touches the surface counts its whole duration as lost.
@@ -243,6 +257,7 @@ def contact_lost_time(log: RunLog, t_start: float = -math.inf) -> float:
     -------
     float
         Seconds out of contact.
+
     """
     durations = np.diff(log.t, append=log.t[-1])
     touched = np.flatnonzero(log.in_contact)
@@ -253,7 +268,8 @@ def contact_lost_time(log: RunLog, t_start: float = -math.inf) -> float:
 
 
 def surface_axis(n_W: np.ndarray) -> int:
-    """Index of the first base axis tangent to the surface (least aligned with ``n_W``).
+    """
+    Index of the first base axis tangent to the surface (least aligned with ``n_W``).
 
     For the paper arm, ``n_W = (0, -1, 0)`` gives 0: the motion runs along base x.
     """
@@ -264,7 +280,8 @@ def surface_axis(n_W: np.ndarray) -> int:
 
 def compute_metrics(log: RunLog, t_start: float = 5.0,
                     wall_time_s: float = float('nan')) -> dict[str, Any]:
-    """Tracking metrics of one run.
+    """
+    Tracking metrics of one run.
 
     Parameters
     ----------
@@ -291,6 +308,7 @@ def compute_metrics(log: RunLog, t_start: float = 5.0,
     ------
     AnalysisError
         Invalid log, non-finite ``t_start`` or no sample at or after ``t_start``.
+
     """
     if not isinstance(log, RunLog):
         raise AnalysisError(f'compute_metrics: expected a RunLog, got {type(log).__name__}')

@@ -1,4 +1,5 @@
-"""Read and write the controller's rosbag2 recordings with ``rosbags`` (no rclpy).
+"""
+Read and write the controller's rosbag2 recordings with ``rosbags`` (no rclpy).
 
 :func:`load_run` turns a recording (MCAP or sqlite3) into an
 :class:`~hybrid_force_controller.tools.analysis.RunLog`; :class:`BagWriter` writes an MCAP bag
@@ -81,7 +82,8 @@ class BagError(ValueError):
 
 
 class BagWriter:
-    """Write a rosbag2 MCAP bag (metadata version 8, Jazzy typestore).
+    """
+    Write a rosbag2 MCAP bag (metadata version 8, Jazzy typestore).
 
     The bag is created (and its directory must not exist) on construction; use it as a
     context manager or call :meth:`close`, which writes ``metadata.yaml``. Thread-safe.
@@ -92,6 +94,7 @@ class BagWriter:
         Bag directory to create.
     topics : list of (str, str)
         ``(topic, msgtype)`` pairs, e.g. :data:`RECORD_TOPICS`.
+
     """
 
     def __init__(self, path: str | Path, topics: Sequence[tuple[str, str]]) -> None:
@@ -131,12 +134,14 @@ class BagWriter:
         return self._writer is None
 
     def write(self, topic: str, stamp_ns: int, raw_cdr: bytes) -> None:
-        """Append one serialized (CDR, with encapsulation header) message.
+        """
+        Append one serialized (CDR, with encapsulation header) message.
 
         Raises
         ------
         BagError
             Closed writer, unknown topic or negative stamp.
+
         """
         if topic not in self._connections:
             raise BagError(f'topic {topic} was not declared for bag {self.path}')
@@ -209,12 +214,14 @@ def _value(topic: str, msg: Any) -> Any:
 
 
 def _read_series(bag_path: Path) -> dict[str, _Series]:
-    """Deserialize the topics :func:`load_run` uses.
+    """
+    Deserialize the topics :func:`load_run` uses.
 
     Raises
     ------
     BagError
         Unreadable or empty bag, or a required topic absent.
+
     """
     wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE)
     try:
@@ -252,7 +259,8 @@ def _sorted_by_stamp(series: _Series) -> _Series:
 
 
 def _on_x_time(series: _Series, x: _Series) -> np.ndarray:
-    """Zero-order hold ``series`` onto the samples of the position topic.
+    """
+    Zero-order hold ``series`` onto the samples of the position topic.
 
     Stamped topics align header stamps; headerless ones (``Float64MultiArray``) align
     bag log times against the position topic's log times, so a sim-time header clock and
@@ -285,8 +293,11 @@ def _theta(series: _Series, x: _Series, bag_path: Path) -> tuple[np.ndarray, tup
 
 
 def _stiffness(series: _Series | None, x: _Series) -> np.ndarray | None:
-    """The stiffness estimate on the position samples (NaN before its first message);
-    None when the bag has no message on the topic."""
+    """
+    The stiffness estimate on the position samples (NaN before its first message).
+
+    None when the bag has no message on the topic.
+    """
     if series is None or not series.values:
         return None
     k_hat = _on_x_time(series, x)
@@ -308,7 +319,8 @@ def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
 
 def load_run(bag_path: str | Path,
              contact_threshold_n: float = CONTACT_FORCE_MIN_N) -> RunLog:
-    """Load a controller recording as a :class:`RunLog` on the stamps of ``TOPIC_X``.
+    """
+    Load a controller recording as a :class:`RunLog` on the stamps of ``TOPIC_X``.
 
     Parameters
     ----------
@@ -330,6 +342,7 @@ def load_run(bag_path: str | Path,
     BagError
         Missing path, unreadable/corrupt or empty bag, missing or empty required topic,
         zero desired wrench, or signals that do not form a valid run log.
+
     """
     path = Path(bag_path)
     if not path.exists():

@@ -1,4 +1,5 @@
-"""Offline speed figures of the ``bench`` executable (never asserted in tests).
+"""
+Offline speed figures of the ``bench`` executable (never asserted in tests).
 
 - ``controller_step_us_median`` / ``_p99``: one ``ControllerRuntime.tick`` (inputs already
   stored: filter, reference, control law (5)-(11), adaptation (26), limits) of the 2-DOF

@@ -1,5 +1,7 @@
-"""Figures 3-5 of the paper from a :class:`~hybrid_force_controller.tools.analysis.RunLog`,
-and the online stiffness estimate (``fig6_stiffness.png``) when the run recorded it.
+"""
+Figures 3-5 of the paper from a :class:`~hybrid_force_controller.tools.analysis.RunLog`.
+
+And the online stiffness estimate (``fig6_stiffness.png``) when the run recorded it.
 
 Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
 """
@@ -100,8 +102,11 @@ def _plot_parameters(log: RunLog, path: Path) -> Path:
 
 
 def _plot_stiffness(log: RunLog, path: Path) -> Path:
-    """The online stiffness estimate over time (gaps where unknown), the true k dashed
-    with a +-10 % band."""
+    """
+    The online stiffness estimate over time (gaps where unknown).
+
+    The true k dashed with a +-10 % band.
+    """
     fig, (ax,) = _new_figure(1)
     known = ~np.isnan(log.k_hat)
     ax.plot(log.t, log.k_hat, label='estimate k_hat' if known.any() else 'estimate (unknown)')
@@ -116,8 +121,10 @@ def _plot_stiffness(log: RunLog, path: Path) -> Path:
 
 
 def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
-    """Write ``fig3_position.png``, ``fig4_force.png`` and ``fig5_parameters.png``, and
-    ``fig6_stiffness.png`` when the log holds the stiffness estimate (``log.k_hat``).
+    """
+    Write ``fig3_position.png``, ``fig4_force.png`` and ``fig5_parameters.png``.
+
+    And ``fig6_stiffness.png`` when the log holds the stiffness estimate (``log.k_hat``).
 
     Parameters
     ----------
@@ -130,6 +137,7 @@ def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
     -------
     list of pathlib.Path
         The PNG files, in figure order.
+
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

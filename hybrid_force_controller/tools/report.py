@@ -1,4 +1,7 @@
-"""``report BAG --out DIR``: metrics and Figs. 3-5 of a recorded controller run.
+"""
+``report BAG --out DIR``: metrics and Figs.
+
+3-5 of a recorded controller run.
 
 Writes ``metrics.json`` (non-finite numbers such as an unknown wall time become ``null``;
 ``stiffness_estimate_n_per_m`` is the last recorded stiffness estimate, ``null`` when the
@@ -42,7 +45,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the report.
+    """
+    Run the report.
 
     Parameters
     ----------
@@ -54,6 +58,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     int
         0 on success, 2 when the bag cannot be used or the output cannot be written
         (message on stderr).
+
     """
     args = _parser().parse_args(argv)
     try:

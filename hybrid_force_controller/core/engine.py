@@ -14,8 +14,8 @@ it holds. Times are integer nanoseconds inside, so equal times compare exactly;
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np

@@ -1,9 +1,9 @@
 """The runtime's modes and what one tick gives the node (pure numpy)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from enum import Enum
+import math
 
 import numpy as np
 

@@ -11,9 +11,9 @@ estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``). Pure Pyt
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 import re
-from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np

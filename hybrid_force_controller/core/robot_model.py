@@ -14,15 +14,14 @@ arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y 
 """
 from __future__ import annotations
 
-from typing import NamedTuple
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import pinocchio as pin
 
-from .parameter_sets import ParameterSetError, make_parameter_set
+from .parameter_sets import make_parameter_set, ParameterSetError
 
 __all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
 

@@ -24,8 +24,8 @@ are seconds on the caller's clock.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -40,7 +40,7 @@ from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, Wre
                      WrenchSample)
 from .margin import delay_margin
 from .modes import Mode, TickOutput
-from .params import ControllerParams, ParameterValidationError, build_params
+from .params import build_params, ControllerParams, ParameterValidationError
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel, TaskKinematics
 from .stiffness_loop import StiffnessLoop, StiffnessStatus

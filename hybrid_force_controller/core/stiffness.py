@@ -60,8 +60,8 @@ surface unknown again: the fit restarts from the prior and the k_s command jumps
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
+import math
 
 __all__ = ['MIN_SAMPLES', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
            'StiffnessEstimator']

@@ -8,8 +8,8 @@ process (random, Poisson with log-uniform durations, or scheduled, e.g. SIGSTOP 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any, Iterator
 
 import numpy as np
@@ -87,8 +87,9 @@ class TimingModel:
         0.1-0.4 ms per message, 0.2 ms compute, timer lateness, and stalls of 1-30 ms a few times a
         second in each process (scheduler, garbage collector, other load).
         """
-        base = dict(latency=1e-4, latency_jitter=1e-4, compute=2e-4, tick_phase=5e-4,
-                    tick_jitter=1e-4, stall_rate_hz=4.0, stall_s=(1e-3, 30e-3), seed=seed)
+        base = {'latency': 1e-4, 'latency_jitter': 1e-4, 'compute': 2e-4, 'tick_phase': 5e-4,
+                'tick_jitter': 1e-4, 'stall_rate_hz': 4.0, 'stall_s': (1e-3, 30e-3),
+                'seed': seed}
         return cls(**{**base, **overrides})
 
 

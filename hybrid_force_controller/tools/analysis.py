@@ -8,8 +8,8 @@ scalars). Frames: ``_W`` is the robot base frame.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np

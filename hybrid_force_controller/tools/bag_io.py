@@ -12,9 +12,9 @@ unknown).
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+import threading
 from types import TracebackType
 from typing import Any, Sequence
 
@@ -23,16 +23,16 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
                                 QosReliability, QosTime)
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import get_typestore, Stores
 
+from .analysis import align, AnalysisError, RunLog
 from ..core.contact import CONTACT_FORCE_MIN_N, in_contact
-from .analysis import AnalysisError, RunLog, align
 
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
            'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
-           'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED', 'TOPIC_X',
-           'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
+           'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED',
+           'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
 TOPIC_X = '/hybrid_force_controller/x'
 TOPIC_X_DESIRED = '/hybrid_force_controller/x_desired'

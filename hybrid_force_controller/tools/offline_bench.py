@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from ..core.arm7 import panda_model, panda_scenario
-from ..core.scenario import ScenarioConfig, run_scenario
+from ..core.scenario import run_scenario, ScenarioConfig
 
 
 def _tick_us(cfg: ScenarioConfig, model=None) -> np.ndarray:

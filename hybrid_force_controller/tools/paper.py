@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 from typing import Sequence
 
-from .analysis import RunLog, compute_metrics, json_safe
-from ..core.scenario import ScenarioConfig, run_scenario
+from .analysis import compute_metrics, json_safe, RunLog
+from ..core.scenario import run_scenario, ScenarioConfig
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -15,9 +15,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
-import sys
 from pathlib import Path
+import sys
 from typing import Sequence
 
 from .analysis import AnalysisError, compute_metrics, json_safe

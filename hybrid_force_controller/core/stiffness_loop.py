@@ -59,7 +59,11 @@ class StiffnessLoop:
 
     @property
     def k_hat(self) -> float:
-        """The estimate, N/m; NaN while unknown (never valid since the start or a new prior)."""
+        """
+        Return the estimate, N/m; NaN while unknown.
+
+        Unknown: never valid since the start or a new prior.
+        """
         return self.estimator.k_hat if self._known else math.nan
 
     def configure(self, config: StiffnessConfig, n_W: np.ndarray,

@@ -1,7 +1,5 @@
 """
-``paper`` executable: the scenario of section V of [1] offline, Figs.
-
-3-5 + metrics.
+``paper`` executable: the scenario of section V of [1] offline, Figs. 3-5 + metrics.
 
 ``ros2 run hybrid_force_controller paper --out DIR`` runs 20 s of the paper's scenario
 (lambda1 = 40, lambda2 = 0.1, Gamma = 70 I, k = 1700 N/m, q(0) = (0.657, 0.913),

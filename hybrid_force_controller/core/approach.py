@@ -40,7 +40,7 @@ class Approach:
         """
         Begin at position ``x_n`` (m along n) with velocity ``v_n`` (m/s).
 
-        Taken within ``[0, speed]``.
+        The velocity is clipped into ``[0, speed]``.
         """
         self.x0, self.x, self.exhausted = x_n, x_n, False
         self.v = min(max(v_n, 0.0), self.speed)

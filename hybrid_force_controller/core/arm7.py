@@ -25,22 +25,23 @@ MASS_ERROR = (1.3, 0.7, 1.3, 0.7, 1.3, 0.7, 1.3)  # theta_hat(0) / true masses
 
 
 def panda_urdf_path() -> Path:
-    """The bundled Panda URDF (kinematics and inertias, no meshes)."""
+    """Return the path of the bundled Panda URDF (kinematics and inertias, no meshes)."""
     return Path(str(resources.files('hybrid_force_controller') / 'robots' / 'panda.urdf'))
 
 
 def panda_model(parameter_set: str = 'link_masses') -> RobotModel:
-    """The Panda's 7 arm joints (fingers locked), z up, task frame ``panda_hand_tcp``."""
+    """Load the Panda: 7 arm joints (fingers locked), z up, task frame ``panda_hand_tcp``."""
     return RobotModel.from_urdf(panda_urdf_path(), end_effector_link='panda_hand_tcp',
                                 joints=PANDA_JOINTS, gravity_root=(0.0, 0.0, -9.81),
                                 parameter_set=parameter_set)
 
 
 def panda_scenario(model: RobotModel, duration: float = 20.0, **kwargs) -> ScenarioConfig:
-    """The scenario config; the line is centred under the start position of the tool."""
+    """Return the scenario config; the line is centred under the start position of the tool."""
     p0 = model.kinematics(np.array(PANDA_Q0), np.zeros(model.n)).p_W
     n = [0.0, np.sin(TILT_RAD), -np.cos(TILT_RAD)]
     overrides = {'n': n, 'f_d': 5.0, 'ref_center': p0.tolist(),
-                 'ref_amplitude': [0.05, 0.0, 0.0], 'ref_omega': 1.0, **kwargs.pop('overrides', {})}
+                 'ref_amplitude': [0.05, 0.0, 0.0], 'ref_omega': 1.0,
+                 **kwargs.pop('overrides', {})}
     return ScenarioConfig(k=3000.0, duration=duration, q0=PANDA_Q0,
                           theta_hat0_scale=MASS_ERROR, overrides=overrides, **kwargs)

@@ -7,7 +7,11 @@ CONTACT_FORCE_MIN_N = 0.05
 
 
 def contact_threshold(f_d: float, minimum: float = CONTACT_FORCE_MIN_N) -> float:
-    """Normal force above which the tool counts as touching: ``max(0.05 N, 0.1 f_d)``, N."""
+    """
+    Return the normal force (N) above which the tool counts as touching.
+
+    ``max(minimum, 0.1 f_d)``, the minimum 0.05 N by default.
+    """
     return max(minimum, 0.1 * f_d)
 
 

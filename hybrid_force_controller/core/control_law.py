@@ -89,10 +89,10 @@ class ControlOutput(NamedTuple):
     """
     One tick's result.
 
-    The effort (finite, before the runtime's limits), e (task coordinates, ``model.task_axes``),
-    the kinematics it used, theta_hat after the update, the force integral h, and the normal part
-    of r (m/s) with the mode-specific term of rdot's normal part (m/s^2; the rest of rdot is common
-    to both modes).
+    It holds the effort (finite, before the runtime's limits), e (task coordinates,
+    ``model.task_axes``), the kinematics it used, theta_hat after the update, the force integral
+    h, and the normal part of r (m/s) with the mode-specific term of rdot's normal part (m/s^2;
+    the rest of rdot is common to both modes).
     """
 
     tau: np.ndarray
@@ -171,12 +171,12 @@ class HybridForceController:
 
     @property
     def k_s(self) -> float:
-        """The k_s in use, N/m (the gains' unless ``set_k_s`` set one)."""
+        """Return the k_s in use, N/m (the gains' unless ``set_k_s`` set one)."""
         return self._k.k_s
 
     @property
     def lambda2(self) -> float:
-        """The lambda2 in use, ``lambda2_0 k_s0 / k_s``, m/(N s^2)."""
+        """Return the lambda2 in use, ``lambda2_0 k_s0 / k_s``, m/(N s^2)."""
         return self._k.lambda2
 
     def set_gains(self, gains: LawGains) -> None:
@@ -223,10 +223,10 @@ class HybridForceController:
 
     def _linear_part(self, P_t: np.ndarray, n: np.ndarray, l1: float) -> np.ndarray:
         """
-        G with ``G z = [r; rdot]`` minus their force terms.
+        Return G with ``G z = [r; rdot]`` minus their force terms.
 
-        ``z = (x, xdot, x_d, xdot_d, xddot_d)`` (x, xdot in task coordinates, the reference 3-D):
-        one product per tick.
+        Here ``z = (x, xdot, x_d, xdot_d, xddot_d)`` (x, xdot in task coordinates, the reference
+        3-D): one product per tick.
         """
         m = len(n)
         A = np.eye(3)[list(self.model.task_axes)]  # base frame -> task coordinates
@@ -247,11 +247,11 @@ class HybridForceController:
                            r_bias: tuple[float, float] = (0.0, 0.0)
                            ) -> tuple[np.ndarray, np.ndarray, float, float, float]:
         """
-        r and rdot from eqs. (8) and (11) (scaled form, module docstring), df_n.
+        Compute r and rdot from eqs. (8) and (11) (scaled form, module docstring).
 
-        The normal part of r and the mode-specific part of rdot's. With ``approach`` the normal
-        part tracks that reference instead of the force loop; ``r_bias`` (m/s, m/s^2) is added to
-        them (the runtime's hand-over from an approach).
+        Returns r, rdot, df_n, the normal part of r and the mode-specific part of rdot's. With
+        ``approach`` the normal part tracks that reference instead of the force loop; otherwise
+        ``r_bias`` (m/s, m/s^2) is added to them (the runtime's hand-over from an approach).
         """
         d = self._d
         g, n, m = d.gains, d.n, len(d.n)
@@ -268,10 +268,11 @@ class HybridForceController:
 
     def force_loop_r_n(self, f_n: float) -> tuple[float, float]:
         """
-        Normal part of r in the force loop, ``-(c lambda1 (f_n - f_d) + lambda2 h)``.
+        Return the normal part of r in the force loop and the mode-specific part of rdot's.
 
-        And the mode-specific part of rdot's, ``(c_rate lambda1 - lambda2) (f_n - f_d)``
-        (``c_rate``: the rate of change of the compliance, set_k_s).
+        The normal part of r is ``-(c lambda1 (f_n - f_d) + lambda2 h)``, the mode-specific part
+        of rdot's ``(c_rate lambda1 - lambda2) (f_n - f_d)`` (``c_rate``: the rate of change of
+        the compliance, set_k_s).
         """
         g, k = self._d.gains, self._k
         df_n = f_n - g.f_d
@@ -287,16 +288,27 @@ class HybridForceController:
 
         Parameters
         ----------
-        q, qdot : joint positions and velocities, in ``model.joint_names`` order.
-        f_W : (3,) force the tool exerts on the surface, base frame, N (filtered).
-        ref : desired motion at this tick.
-        dt : time theta_hat and h integrate over, s (>= 0; 0: nothing integrates).
-        in_contact : the runtime's contact state (anti-windup of h).
-        approach : normal reference of an approach (None: the force loop).
-        r_bias : added to the normal part of r and rdot in the force loop (m/s, m/s^2).
-        kin : ``model.kinematics(q, qdot)`` when the caller has it already.
+        q, qdot : numpy.ndarray
+            Joint positions and velocities, in ``model.joint_names`` order.
+        f_W : numpy.ndarray, shape (3,)
+            Force the tool exerts on the surface, base frame, N (filtered).
+        ref : Reference
+            Desired motion at this tick.
+        dt : float
+            Time theta_hat and h integrate over, s (>= 0; 0: nothing integrates).
+        in_contact : bool
+            The runtime's contact state (anti-windup of h).
+        approach : ApproachRef, optional
+            Normal reference of an approach (None: the force loop).
+        r_bias : tuple of float
+            Added to the normal part of r and rdot in the force loop (m/s, m/s^2).
+        kin : TaskKinematics, optional
+            ``model.kinematics(q, qdot)`` when the caller has it already.
 
-        Returns ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e)`` (eq. 5 in joint space).
+        Returns
+        -------
+        ControlOutput
+            With ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e)`` (eq. 5 in joint space).
 
         """
         if not (dt >= 0.0 and math.isfinite(dt)):
@@ -332,9 +344,10 @@ class HybridForceController:
     def _integrate(self, Y_q: np.ndarray, s: np.ndarray, df_n: float, dt: float,
                    force_loop: bool) -> None:
         """
-        Eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and the force integral h.
+        Integrate eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and h, eq. (20).
 
-        eq. (20), frozen out of contact (anti-windup) and never holding a retreat (h > 0) there.
+        The force integral h is frozen out of contact (anti-windup) and never holds a retreat
+        (h > 0) there.
         """
         d = self._d
         g = d.gains

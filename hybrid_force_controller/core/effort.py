@@ -26,14 +26,14 @@ class EffortLimiter:
         self._last: np.ndarray | None = None
 
     def configure(self, limits: np.ndarray, max_rate: float) -> None:
-        """New limits (a parameter set); the last command is kept for the rate limit."""
+        """Install new limits (a parameter set); the last command is kept for the rate limit."""
         self.limits, self.max_rate = np.asarray(limits, dtype=float), float(max_rate)
 
     def reset(self) -> None:
         self._last = None
 
     def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, bool]:
-        """The limited effort and whether a limit was active."""
+        """Limit ``tau``; return the limited effort and whether a limit was active."""
         out = tau
         if self.max_rate > 0.0 and self._last is not None:
             out = np.minimum(np.maximum(out, self._last - self.max_rate),
@@ -66,7 +66,7 @@ class SafeHold:
 
     def effort(self, q: np.ndarray, qdot: np.ndarray, theta_hat: np.ndarray, k_d: float,
                k_null: float, fresh_velocity: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The hold effort and the end-effector position (base frame) at ``q``."""
+        """Return the hold effort and the end-effector position (base frame) at ``q``."""
         model, z = self.model, self._zero
         kin = model.kinematics(q, qdot)
         Y_g, tau_0 = model.regressor_affine(q, z, z, z)

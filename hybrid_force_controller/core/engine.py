@@ -14,8 +14,8 @@ it holds. Times are integer nanoseconds inside, so equal times compare exactly;
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
@@ -50,9 +50,10 @@ class Event:
 @dataclass
 class LoopLog:
     """
-    Per plant step: time, state, forces (3-D, base frame), reference, effort.
+    Log of a run, one entry per plant step.
 
-    theta_hat and the stiffness estimate ``k_hat`` (N/m, NaN while unknown).
+    Time, state, forces (3-D, base frame), reference, effort, theta_hat and the stiffness
+    estimate ``k_hat`` (N/m, NaN while unknown).
     """
 
     t: np.ndarray
@@ -84,7 +85,7 @@ class _Channel:
         self.queue.append((arrival, payload))
 
     def newest(self, now: int) -> Any:
-        """The newest payload arrived by ``now`` (older ones are dropped: KEEP_LAST 1)."""
+        """Return the newest payload arrived by ``now`` (older ones are dropped: KEEP_LAST 1)."""
         got = None
         while self.queue and self.queue[0][0] <= now:
             got = self.queue.pop(0)[1]
@@ -186,7 +187,7 @@ def _ns(t: float) -> int:
 
 def _deliver(runtime: ControllerRuntime, names: list[str], frame: str, got: tuple,
              hook: Callable | None) -> None:
-    """The joint state and wrench of one plant stamp, as the node would pass them."""
+    """Pass the joint state and wrench of one plant stamp to the runtime, as the node would."""
     t_ns, meas = got
     t = t_ns * 1e-9
     msg = (meas.q, meas.qdot, sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W))

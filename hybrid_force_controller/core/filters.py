@@ -25,12 +25,12 @@ class LowPassFilter:
 
     @property
     def ready(self) -> bool:
-        """True once a finite sample has been seen."""
+        """Return True once a finite sample has been seen."""
         return self._ready
 
     @property
     def value(self) -> np.ndarray:
-        """The current output (zeros before the first finite sample)."""
+        """Return the current output (zeros before the first finite sample)."""
         return self._y
 
     def reset(self) -> None:

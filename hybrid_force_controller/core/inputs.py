@@ -7,7 +7,8 @@ whether a wrench reading is plausible: finite, in a known frame, not older than 
 within ``wrench_limit`` and not changing faster than ``wrench_rate_limit`` from the last
 accepted reading. A frozen sensor (bit-identical non-zero readings) is flagged so the
 runtime can treat its value as stale; exact zeros are exempt, since that is what a
-noise-free simulated sensor reports out of contact (a real sensor is never exactly 0). Each problem raises :class:`InputError` naming it.
+noise-free simulated sensor reports out of contact (a real sensor is never exactly 0).
+Each problem raises :class:`InputError` naming it.
 """
 from __future__ import annotations
 

@@ -27,8 +27,9 @@ class LoopStats:
 
     def summary(self) -> dict[str, float]:
         """
-        ``rate_hz``, ``period_p50_ms``, ``period_p99_ms``, ``compute_p50_ms``.
+        Return the rate and the period and compute-time percentiles.
 
+        Keys ``rate_hz``, ``period_p50_ms``, ``period_p99_ms``, ``compute_p50_ms``,
         ``compute_p99_ms`` and ``samples`` (NaN where there is too little data).
         """
         n = min(self._k, self._start.size)

@@ -121,10 +121,10 @@ def _axis_gains(model: RobotModel, g: LawGains, q: np.ndarray
 def estimate_operating_points(g: LawGains, stiffness: StiffnessConfig
                               ) -> list[tuple[LawGains, float]]:
     """
-    (gains with the k_s and lambda2 the law would use.
+    Return (gains, surface k) pairs over the k_s the stiffness estimate may command.
 
-    Surface k) over the k_s the stiffness estimate may command (module docstring); empty when it is
-    off.
+    The gains carry the k_s and lambda2 the law would use (module docstring); the list is empty
+    when the estimate is off.
     """
     if not stiffness.enabled:
         return []
@@ -141,11 +141,11 @@ def delay_margin(model: RobotModel, g: LawGains, q: np.ndarray, filter_hz: float
                  k_values: tuple[float, ...] | None = None,
                  stiffness: StiffnessConfig | None = None) -> float:
     """
-    Worst delay margin (s) at configuration ``q`` over the task inertia's extreme eigenvalues.
+    Return the worst delay margin (s) at configuration ``q``.
 
-    Both axes, and surface stiffnesses ``k_values`` (default k_max and fractions of it); with an
-    enabled ``stiffness`` config also over the k_s the estimate may command
-    (:func:`estimate_operating_points`).
+    The worst over the task inertia's extreme eigenvalues, both axes, and surface stiffnesses
+    ``k_values`` (default k_max and fractions of it); with an enabled ``stiffness`` config also
+    over the k_s the estimate may command (:func:`estimate_operating_points`).
     """
     M_x, K_I, n = _axis_gains(model, g, q)
     masses = np.linalg.eigvalsh(M_x)

@@ -1,9 +1,9 @@
 """The runtime's modes and what one tick gives the node (pure numpy)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from enum import Enum
+import math
 
 import numpy as np
 
@@ -23,10 +23,10 @@ class Mode(str, Enum):
 @dataclass
 class TickOutput:
     """
-    One tick for the node to publish (3-D vectors in the base frame.
+    One tick for the node to publish.
 
-    ``tau`` in the order of ``params.runtime.joints``, None while waiting; ``k_hat`` the stiffness
-    estimate, N/m, NaN while unknown).
+    3-D vectors are in the base frame; ``tau`` is in the order of ``params.runtime.joints``, None
+    while waiting; ``k_hat`` is the stiffness estimate, N/m, NaN while unknown.
     """
 
     tau: np.ndarray | None

@@ -25,7 +25,8 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin
 
-__all__ = ['PARAMETER_SETS', 'ParameterSet', 'ParameterSetError', 'make_parameter_set', 'project_physical']
+__all__ = ['PARAMETER_SETS', 'ParameterSet', 'ParameterSetError', 'make_parameter_set',
+           'project_physical']
 
 PARAMETER_SETS = ('link_masses', 'payload', 'full')
 
@@ -96,10 +97,11 @@ def _full(model: pin.Model, ee_joint: int) -> ParameterSet:
 
 
 def make_parameter_set(model: pin.Model, name: str, ee_joint: int) -> ParameterSet:
-    """The named set for ``model`` (``ee_joint``: joint index of the end-effector body)."""
+    """Build the named set for ``model`` (``ee_joint``: joint index of the end-effector body)."""
     builders = {'link_masses': _link_masses, 'payload': _payload, 'full': _full}
     if name not in builders:
-        raise ParameterSetError(f"unknown parameter set '{name}', expected one of {PARAMETER_SETS}")
+        raise ParameterSetError(
+            f"unknown parameter set '{name}', expected one of {PARAMETER_SETS}")
     return builders[name](model, ee_joint)
 
 
@@ -127,7 +129,7 @@ def project_physical(theta: np.ndarray, min_mass: float = 1e-3,
 
 
 def _project_payload(theta: np.ndarray) -> np.ndarray:
-    """A payload may vanish (m = 0); otherwise it must be physically consistent."""
+    """Project a payload: it may vanish (m = 0); otherwise it must be physically consistent."""
     if theta[0] <= 1e-6:
         return np.zeros_like(theta)
     return _consistent_body(theta, 1e-6, 0.0)

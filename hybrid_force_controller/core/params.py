@@ -11,9 +11,9 @@ estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``). Pure Pyt
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 import re
-from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -32,10 +32,11 @@ class ParameterValidationError(ValueError):
 @dataclass(frozen=True)
 class ParamSpec:
     """
-    One parameter: ROS type (``double``, ``integer``, ``double_array``, ``string_array``.
+    One parameter of the schema.
 
-    ``string``, ``bool``), default, description, closed bounds (``None``: unbounded) and the group
-    it configures (``law``, ``runtime`` or ``stiffness``).
+    Its ROS type (``double``, ``integer``, ``double_array``, ``string_array``, ``string``,
+    ``bool``), default, description, closed bounds (``None``: unbounded) and the group it
+    configures (``law``, ``runtime`` or ``stiffness``).
     """
 
     name: str
@@ -245,7 +246,7 @@ class ControllerParams:
 
 
 def schema_defaults() -> dict[str, Any]:
-    """Default value of every parameter."""
+    """Return the default value of every parameter."""
     return {s.name: s.default for s in CONTROLLER_SCHEMA}
 
 
@@ -264,9 +265,9 @@ def check_stability(lambda1: float, lambda2: float, k_max: float) -> None:
 
 def check_stability_estimated(lambda1: float, lambda2: float, k_s: float) -> None:
     """
-    Eq. (29) at the operating point of the stiffness estimate.
+    Check eq. (29) at the operating point of the stiffness estimate.
 
-    ``lambda1^2 > 2 lambda2 k_s``, lambda2 and k_s the configured ones.
+    Require ``lambda1^2 > 2 lambda2 k_s``, lambda2 and k_s the configured ones.
 
     With ``k_s := k_hat`` and ``lambda2 k_s`` held (control_law.py) the normal loop on a
     surface k is ``hddot + (k/k_hat) lambda1 hdot + lambda2 k_s (k/k_hat) h = 0``; (28)
@@ -290,7 +291,8 @@ def _scalar(spec: ParamSpec, value: Any) -> float:
     if spec.positive and not x > 0.0:
         raise ParameterValidationError(f'{spec.name} must be > 0, got {x:g}')
     if (spec.lo is not None and x < spec.lo) or (spec.hi is not None and x > spec.hi):
-        raise ParameterValidationError(f'{spec.name} = {x:g} is outside [{spec.lo:g}, {spec.hi:g}]')
+        raise ParameterValidationError(
+            f'{spec.name} = {x:g} is outside [{spec.lo:g}, {spec.hi:g}]')
     return x
 
 
@@ -301,7 +303,11 @@ def _bool(spec: ParamSpec, value: Any) -> bool:
 
 
 def _array(name: str, value: Any, sizes: Sequence[int] | None = None) -> np.ndarray:
-    """A finite float array; ``None`` (an empty array as a params file gives it) is empty."""
+    """
+    Return ``value`` as a finite float array of one of ``sizes`` elements (default any).
+
+    ``None`` (an empty array as a params file gives it) is empty.
+    """
     items = [] if value is None else value
     try:
         items = list(items)
@@ -309,7 +315,8 @@ def _array(name: str, value: Any, sizes: Sequence[int] | None = None) -> np.ndar
             raise TypeError('booleans are not numbers')
         arr = np.asarray(items, dtype=float)
     except (TypeError, ValueError):
-        raise ParameterValidationError(f'{name} must be an array of numbers, got {value!r}') from None
+        raise ParameterValidationError(
+            f'{name} must be an array of numbers, got {value!r}') from None
     if sizes is not None and arr.size not in sizes:
         want = ' or '.join(str(s) for s in sizes)
         raise ParameterValidationError(f'{name} must have {want} elements, got {arr.size}')
@@ -373,7 +380,8 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
     n_joints = model.n
     joints = tuple(str(j) for j in v['joints'])
     if len(joints) != n_joints or len(set(joints)) != n_joints:
-        raise ParameterValidationError(f'joints must name {n_joints} distinct joints, got {joints}')
+        raise ParameterValidationError(
+            f'joints must name {n_joints} distinct joints, got {joints}')
     unknown = [j for j in joints if j not in model.joint_names]
     if unknown:
         raise ParameterValidationError(f'joints not in the robot model: {unknown}')
@@ -388,16 +396,19 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
         ref_amplitude=_array('ref_amplitude', v['ref_amplitude'], (3,)),
         ref_omega=s['ref_omega'], ref_blend_time=s['ref_blend_time'],
         state_timeout=s['state_timeout'], max_integration_dt=s['max_integration_dt'],
-        min_delay_margin=s['min_delay_margin'], approach_speed=s['approach_speed'], approach_limit=s['approach_limit'],
+        min_delay_margin=s['min_delay_margin'], approach_speed=s['approach_speed'],
+        approach_limit=s['approach_limit'],
         wrench_limit=s['wrench_limit'], wrench_rate_limit=s['wrench_rate_limit'],
         reject_frozen_wrench=s['reject_frozen_wrench'])
 
 
 def build_params(model: Any, values: Mapping[str, Any] | None = None) -> ControllerParams:
     """
-    Validate a set of values (missing ones take the defaults) against the schema and ``model`` (a :class:`~.robot_model.RobotModel`: joints, task axes, parameter set, URDF effort limits) and freeze it.
+    Validate a set of values against the schema and ``model`` and freeze it.
 
-    Raises :class:`ParameterValidationError` with the reason on the first problem.
+    Missing values take the defaults; ``model`` is a :class:`~.robot_model.RobotModel` (joints,
+    task axes, parameter set, URDF effort limits). Raises :class:`ParameterValidationError`
+    with the reason on the first problem.
     """
     values = {} if values is None else values
     unknown = set(values) - set(_SPECS)
@@ -411,7 +422,7 @@ def build_params(model: Any, values: Mapping[str, Any] | None = None) -> Control
 
 
 def _stiffness_config(s: Mapping[str, Any]) -> StiffnessConfig:
-    """The ``stiffness`` group with the shared k_max, k_s and force_filter_hz."""
+    """Build the ``stiffness`` group with the shared k_max, k_s and force_filter_hz."""
     if s['stiffness_estimation']:
         check_stability_estimated(s['lambda1'], s['lambda2'], s['k_s'])
     try:

@@ -52,7 +52,8 @@ def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
     h0 = 1.0 - 10 * s**3 + 15 * s**4 - 6 * s**5
     dh0 = (-30 * s**2 + 60 * s**3 - 30 * s**4) / T
     ddh0 = (-60 * s + 180 * s**2 - 120 * s**3) / T**2
-    x, v, a = ref.x_d_W + h0 * offset_W, ref.xdot_d_W + dh0 * offset_W, ref.xddot_d_W + ddh0 * offset_W
+    x, v, a = (ref.x_d_W + h0 * offset_W, ref.xdot_d_W + dh0 * offset_W,
+               ref.xddot_d_W + ddh0 * offset_W)
     if offset_vel_W is not None:
         h1 = T * (s - 6 * s**3 + 8 * s**4 - 3 * s**5)
         dh1 = 1.0 - 18 * s**2 + 32 * s**3 - 15 * s**4
@@ -79,7 +80,7 @@ class BlendedReference:
         self.dp_W, self.dv_W, self.tau_b = np.zeros(3), np.zeros(3), 0.0
 
     def base(self, tau: float) -> Reference:
-        """The reference without the blend: the sine, or the held point at rest."""
+        """Return the reference without the blend: the sine, or the held point at rest."""
         if self.x_hold_W is None:
             return self.sine(tau)
         z = np.zeros(3)

@@ -14,15 +14,14 @@ arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y 
 """
 from __future__ import annotations
 
-from typing import NamedTuple
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 import pinocchio as pin
 
-from .parameter_sets import ParameterSetError, make_parameter_set
+from .parameter_sets import make_parameter_set, ParameterSetError
 
 __all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
 
@@ -35,7 +34,8 @@ class ModelError(ValueError):
 
 def default_urdf_path() -> Path:
     """Path of the bundled URDF of the paper's 2-link planar arm (section V of [1])."""
-    return Path(str(resources.files('hybrid_force_controller') / 'robots' / 'two_link_planar.urdf'))
+    return Path(str(resources.files('hybrid_force_controller') / 'robots'
+                    / 'two_link_planar.urdf'))
 
 
 class TaskKinematics(NamedTuple):
@@ -152,7 +152,7 @@ class RobotModel:
         return None if identity else R.T.copy()
 
     def _detect_task_axes(self) -> tuple[int, ...]:
-        """Base axes along which the end effector can move (planar arms give 2 axes)."""
+        """Return the base axes along which the end effector can move (planar arms give 2 axes)."""
         rng = np.random.default_rng(0)
         lo, hi = self.model.lowerPositionLimit, self.model.upperPositionLimit
         span = np.zeros(3)
@@ -271,9 +271,9 @@ class RobotModel:
     def base_from_root(self, p: np.ndarray, R: np.ndarray, J: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
-        Position, rotation and (3 x n) Jacobian of a frame.
+        Express the position, rotation and (3 x n) Jacobian of a frame in ``base_link``.
 
-        From the URDF root frame into ``base_link``.
+        The inputs are in the URDF root frame.
         """
         if self._R_W_root is None:
             return p, R, J
@@ -301,7 +301,7 @@ class RobotModel:
         return pin.aba(self.model, self.data, q, qdot, tau)
 
     def with_theta(self, theta: np.ndarray) -> 'RobotModel':
-        """A copy whose inertias are ``pi = P theta + pi_0`` (a plant with other parameters)."""
+        """Return a copy with inertias ``pi = P theta + pi_0`` (a plant with other parameters)."""
         theta = np.asarray(theta, dtype=float)
         if theta.shape != self.theta_nominal.shape or not np.all(np.isfinite(theta)):
             raise ModelError(f'theta must be {len(self.theta_nominal)} finite values')
@@ -318,7 +318,7 @@ class RobotModel:
 
 
 def _parse(src: str | Path) -> pin.Model:
-    """pinocchio model of a URDF path or XML string; ModelError on failure."""
+    """Build the pinocchio model of a URDF path or XML string; ModelError on failure."""
     try:
         if isinstance(src, Path) or not str(src).lstrip().startswith('<'):
             if not Path(src).is_file():

@@ -24,8 +24,8 @@ are seconds on the caller's clock.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -40,7 +40,7 @@ from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, Wre
                      WrenchSample)
 from .margin import delay_margin
 from .modes import Mode, TickOutput
-from .params import ControllerParams, ParameterValidationError, build_params
+from .params import build_params, ControllerParams, ParameterValidationError
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel, TaskKinematics
 from .stiffness_loop import StiffnessLoop, StiffnessStatus
@@ -107,7 +107,7 @@ class ControllerRuntime:
 
     def validate(self, values: dict[str, Any]) -> ControllerParams:
         """
-        Full set of parameter values -> ControllerParams (ParameterValidationError).
+        Validate a full set of parameter values -> ControllerParams (ParameterValidationError).
 
         Beyond the schema, the gains must leave a delay margin (margin.py) of at least
         ``min_delay_margin`` at the arm's latest pose (unchecked before the first state).
@@ -124,9 +124,9 @@ class ControllerRuntime:
 
     def delay_margin(self, params: ControllerParams | None = None) -> float:
         """
-        Loop delay the gains tolerate at the latest pose, s (margin.py.
+        Return the loop delay the gains tolerate at the latest pose, s (margin.py).
 
-        Inf before the first joint state or at a singular pose).
+        Inf before the first joint state or at a singular pose.
         """
         params = params or self._params
         if self._state is None:
@@ -229,19 +229,19 @@ class ControllerRuntime:
 
     @property
     def in_contact(self) -> bool:
-        """The contact state (hysteresis on the filtered normal force)."""
+        """Return the contact state (hysteresis on the filtered normal force)."""
         return self._contact.active
 
     def stiffness_status(self) -> StiffnessStatus:
         """
-        The stiffness estimate and the k_s / lambda2 in use.
+        Return the stiffness estimate and the k_s / lambda2 in use, for /diagnostics.
 
-        For /diagnostics (WARN when ``near_k_max``).
+        /diagnostics reports WARN when ``near_k_max``.
         """
         return self._stiffness.status(self.ctrl)
 
     def desired_position(self, t: float) -> np.ndarray:
-        """The reference position at time ``t`` on the caller's clock (base frame)."""
+        """Return the reference position at time ``t`` on the caller's clock (base frame)."""
         t0 = self._clock.t0
         return self._ref(0.0 if t0 is None else t - t0).x_d_W
 
@@ -299,9 +299,10 @@ class ControllerRuntime:
 
     def _state_step(self) -> tuple[float, float]:
         """
-        Time since the state the last integration used (0 if none is new).
+        Return the time since the state the last integration used, and the part to integrate.
 
-        And the part of it theta_hat and h integrate (at most ``max_integration_dt``).
+        The time is 0 if no state is new; the part of it theta_hat and h integrate is at most
+        ``max_integration_dt``.
         """
         c, t = self._clock, self._state.t
         if t <= c.t_used:
@@ -368,7 +369,9 @@ class ControllerRuntime:
 
     def restart_clock(self) -> None:
         """
-        Forget the inputs after a backward time jump and start as after power-up (keeping theta_hat; the force integral and the rate limiter restart).
+        Forget the inputs after a backward time jump and start as after power-up.
+
+        The estimate theta_hat is kept; the force integral and the rate limiter restart.
         """
         self.counters['clock_restarts'] += 1
         self._state = self._wrench = None

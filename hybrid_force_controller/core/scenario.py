@@ -79,9 +79,9 @@ class ScenarioResult(LoopLog):
 def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
                  clock_ns: Callable[[], int] | None = None) -> ScenarioResult:
     """
-    Run the closed loop for ``cfg.duration`` seconds and return its time series (``clock_ns``.
+    Run the closed loop for ``cfg.duration`` seconds and return its time series.
 
-    See :func:`~.engine.run_loop`).
+    ``clock_ns``: see :func:`~.engine.run_loop`.
     """
     model = RobotModel.from_urdf() if model is None else model
     theta0 = model.theta_nominal * np.asarray(cfg.theta_hat0_scale, dtype=float)

@@ -60,8 +60,8 @@ surface unknown again: the fit restarts from the prior and the k_s command jumps
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
+import math
 
 __all__ = ['MIN_SAMPLES', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
            'StiffnessEstimator']
@@ -87,9 +87,9 @@ _NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'change_force',
 @dataclass(frozen=True)
 class StiffnessConfig:
     """
-    Validated settings of :class:`StiffnessEstimator` (symbols of the module docstring.
+    Validated settings of :class:`StiffnessEstimator`.
 
-    The schema names are in ``params.py``, group ``stiffness``).
+    Symbols of the module docstring; the schema names are in ``params.py``, group ``stiffness``.
 
     Attributes
     ----------
@@ -156,7 +156,7 @@ class StiffnessConfig:
 
     @property
     def prior(self) -> float:
-        """The prior of k_hat, N/m: ``k_hat0``, or ``k_s0`` clipped to the bounds if 0."""
+        """Return the prior of k_hat, N/m: ``k_hat0``, or ``k_s0`` clipped to the bounds if 0."""
         return self.k_hat0 or min(max(self.k_s0, self.k_min), self.k_max)
 
 
@@ -177,9 +177,7 @@ class StiffnessEstimator:
 
     # ------------------------------------------------------------------ state
     def reset(self, k_hat0: float | None = None) -> None:
-        """
-        Forget all data; restart from ``k_hat0`` (default: the config's prior) for k_hat and k_s.
-        """
+        """Forget all data; restart k_hat and k_s from ``k_hat0`` (default: the config's prior)."""
         k0 = self.config.prior if k_hat0 is None else float(k_hat0)
         self._x_f: float | None = None  # x_n through the force filter (S0)
         self.forget_data(k0)
@@ -191,10 +189,10 @@ class StiffnessEstimator:
 
     def forget_data(self, k_prior: float | None = None, *, restart_filter: bool = False) -> None:
         """
-        Restart the regression (S2)-(S6) from the prior ``k_prior`` (default.
+        Restart the regression (S2)-(S6) from the prior ``k_prior`` (default: the current k_hat).
 
-        The current k_hat); the k_s command, the counters and (unless ``restart_filter``, for a new
-        normal) the filter (S0) are kept.
+        The k_s command, the counters and (unless ``restart_filter``, for a new normal) the filter
+        (S0) are kept.
 
         For a new contact, when the surface may have changed: the information of a long
         loading otherwise outweighs a new surface for several ``T_f``.
@@ -217,7 +215,7 @@ class StiffnessEstimator:
 
     def restart(self) -> None:
         """
-        The surface is unknown again (contact lost, or a change (S9)).
+        Treat the surface as unknown again (contact lost, or a change (S9)).
 
         The fit restarts from the prior, the k_s command jumps to ``max(k_s, k_s0)``.
         """
@@ -244,9 +242,9 @@ class StiffnessEstimator:
 
     def set_k_s_command(self, k_s: float) -> None:
         """
-        Restart the k_s command (S7) from ``k_s``, N/m (e.g.
+        Restart the k_s command (S7) from ``k_s``, N/m.
 
-        the k_s in use when the estimate is switched on).
+        For example from the k_s in use when the estimate is switched on.
         """
         if not (isinstance(k_s, (int, float)) and math.isfinite(k_s) and k_s > 0.0):
             raise StiffnessError(f'k_s must be finite and > 0, got {k_s!r}')
@@ -254,12 +252,12 @@ class StiffnessEstimator:
 
     @property
     def k_hat(self) -> float:
-        """Current estimate, N/m, always in ``[k_min, k_max]``."""
+        """Return the current estimate, N/m, always in ``[k_min, k_max]``."""
         return self._kappa * self.config.k_max
 
     @property
     def k_hat_std(self) -> float:
-        """Standard deviation of k_hat from (S6), N/m (large before excitation)."""
+        """Return the standard deviation of k_hat from (S6), N/m (large before excitation)."""
         det = self._r_uu * self._r_bb - self._r_ub * self._r_ub
         s2 = max(self._s2_sum / self._w if self._w > 0.0 else 0.0, self.config.force_floor ** 2)
         return self.config.k_max * math.sqrt(s2 * self._r_bb / det)
@@ -277,7 +275,7 @@ class StiffnessEstimator:
 
     @property
     def k_s(self) -> float:
-        """The last k_s command, N/m."""
+        """Return the last k_s command, N/m."""
         return self._k_s
 
     # ------------------------------------------------------------------ update
@@ -297,17 +295,21 @@ class StiffnessEstimator:
         """
         Feed one sample; return k_hat (N/m).
 
-        Parameters
-        ----------
-        f_n : normal force the tool exerts on the surface, ``n^T f``, N, filtered by the
-            controller's first-order filter (``config.force_filter_hz``).
-        x_n : tool position along the normal, ``n^T x``, base frame, m, unfiltered (it
-            passes through the same filter here, (S0)).
-        dt : time since the previous sample, s (finite, > 0).
-        in_contact : the caller's contact test; samples out of contact are ignored.
-
         Non-finite ``f_n`` / ``x_n`` are ignored and counted (``samples_rejected``).
         Raises :class:`StiffnessError` on a bad ``dt`` or a non-numeric sample.
+
+        Parameters
+        ----------
+        f_n : float
+            Normal force the tool exerts on the surface, ``n^T f``, N, filtered by the
+            controller's first-order filter (``config.force_filter_hz``).
+        x_n : float
+            Tool position along the normal, ``n^T x``, base frame, m, unfiltered (it passes
+            through the same filter here, (S0)).
+        dt : float
+            Time since the previous sample, s (finite, > 0).
+        in_contact : bool
+            The caller's contact test; samples out of contact are ignored.
 
         """
         _, lam, alpha, a = self._factors(dt)

@@ -59,7 +59,11 @@ class StiffnessLoop:
 
     @property
     def k_hat(self) -> float:
-        """The estimate, N/m; NaN while unknown (never valid since the start or a new prior)."""
+        """
+        Return the estimate, N/m; NaN while unknown.
+
+        Unknown: never valid since the start or a new prior.
+        """
         return self.estimator.k_hat if self._known else math.nan
 
     def configure(self, config: StiffnessConfig, n_W: np.ndarray,
@@ -91,10 +95,10 @@ class StiffnessLoop:
     def update(self, ctrl: HybridForceController, f_n: float, p_W: np.ndarray,
                dt_state: float, dt_int: float, touching: bool) -> None:
         """
-        One new state: (S0)-(S6) on ``(f_n, n^T p_W)`` over ``dt_state`` (s, > 0).
+        Process one new state: (S0)-(S6) on ``(f_n, n^T p_W)`` over ``dt_state`` (s, > 0).
 
-        Then (enabled) the k_s command (S7) over ``dt_int`` (s, > 0: the time the law integrates,
-        bounded after a gap) into the law.
+        Then, when enabled, pass the k_s command (S7) over ``dt_int`` (s, > 0: the time the law
+        integrates, bounded after a gap) into the law.
 
         ``f_n`` is the filtered normal force (N), ``p_W`` the tool position of the state
         (base frame, m), ``touching`` the runtime's contact state.

@@ -8,8 +8,8 @@ process (random, Poisson with log-uniform durations, or scheduled, e.g. SIGSTOP 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any, Iterator
 
 import numpy as np
@@ -76,19 +76,20 @@ class TimingModel:
 
     @classmethod
     def lockstep(cls, delay_steps: int = 0) -> 'TimingModel':
-        """The controller sees the state of ``delay_steps`` periods ago, no jitter."""
+        """Model a controller that sees the state of ``delay_steps`` periods ago, no jitter."""
         return cls(delay_steps=delay_steps)
 
     @classmethod
     def ros_measured(cls, seed: int = 0, **overrides: Any) -> 'TimingModel':
         """
-        Two rclpy processes on this 2-core machine (docs/results.md).
+        Model two rclpy processes on this 2-core machine (docs/results.md).
 
         0.1-0.4 ms per message, 0.2 ms compute, timer lateness, and stalls of 1-30 ms a few times a
         second in each process (scheduler, garbage collector, other load).
         """
-        base = dict(latency=1e-4, latency_jitter=1e-4, compute=2e-4, tick_phase=5e-4,
-                    tick_jitter=1e-4, stall_rate_hz=4.0, stall_s=(1e-3, 30e-3), seed=seed)
+        base = {'latency': 1e-4, 'latency_jitter': 1e-4, 'compute': 2e-4, 'tick_phase': 5e-4,
+                'tick_jitter': 1e-4, 'stall_rate_hz': 4.0, 'stall_s': (1e-3, 30e-3),
+                'seed': seed}
         return cls(**{**base, **overrides})
 
 
@@ -156,14 +157,18 @@ class Schedule:
         return t_tick + _to_ns(self.model.compute) + self._latency(1)
 
     def ticks_until(self, t: int, inbox: Any) -> Iterator[int]:
-        """Controller tick times in (last tick, t], in order."""
+        """Yield the controller tick times in (last tick, t], in order."""
         if self.model.tick_on_state:
             yield from self._event_ticks(t, inbox)
         else:
             yield from self._timer_ticks(t)
 
     def _start_time(self, want: int) -> int:
-        """A tick wanted at ``want`` starts when the controller is neither stalled nor busy."""
+        """
+        Return the start of a tick wanted at ``want``.
+
+        It starts when the controller is neither stalled nor busy.
+        """
         t = max(want, self._busy_until, self._last_tick + 1)
         end = self._stall_end('controller', t)
         return t if end is None else end

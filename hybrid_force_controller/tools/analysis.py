@@ -8,8 +8,8 @@ scalars). Frames: ``_W`` is the robot base frame.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np
@@ -103,7 +103,11 @@ class RunLog:
 
     @classmethod
     def from_result(cls, result: Any) -> 'RunLog':
-        """The log of an offline run (:class:`~hybrid_force_controller.core.scenario.ScenarioResult`)."""
+        """
+        Build the log of an offline run.
+
+        ``result`` is a :class:`~hybrid_force_controller.core.scenario.ScenarioResult`.
+        """
         return cls(t=result.t, x_W=result.x_W, x_d_W=result.x_d_W, f_W=result.f_W,
                    f_d_W=result.f_d_W, n_W=result.n_W, theta_hat=result.theta_hat,
                    theta_names=result.theta_names, in_contact=result.in_contact,
@@ -163,7 +167,11 @@ def _validated_fields(log: RunLog) -> dict[str, Any]:
 
 
 def _estimate(value: Any, n: int) -> np.ndarray:
-    """The stiffness estimate: (N,) floats, NaN (unknown) allowed, finite ones > 0."""
+    """
+    Check the stiffness estimate and return it as (N,) floats (read-only).
+
+    NaN (unknown) is allowed; finite values must be > 0.
+    """
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:

@@ -12,9 +12,9 @@ unknown).
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+import threading
 from types import TracebackType
 from typing import Any, Sequence
 
@@ -23,16 +23,16 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
                                 QosReliability, QosTime)
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import get_typestore, Stores
 
+from .analysis import align, AnalysisError, RunLog
 from ..core.contact import CONTACT_FORCE_MIN_N, in_contact
-from .analysis import AnalysisError, RunLog, align
 
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
            'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
-           'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED', 'TOPIC_X',
-           'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
+           'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED',
+           'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
 TOPIC_X = '/hybrid_force_controller/x'
 TOPIC_X_DESIRED = '/hybrid_force_controller/x_desired'
@@ -201,7 +201,7 @@ def _stamp_ns(msg: Any, log_ns: int) -> int:
 
 
 def _value(topic: str, msg: Any) -> Any:
-    """The numbers :func:`load_run` needs from one message."""
+    """Extract the numbers :func:`load_run` needs from one message."""
     if topic in (TOPIC_X, TOPIC_X_DESIRED):
         return (msg.point.x, msg.point.y, msg.point.z)
     if topic == TOPIC_STIFFNESS_ESTIMATE:
@@ -294,7 +294,7 @@ def _theta(series: _Series, x: _Series, bag_path: Path) -> tuple[np.ndarray, tup
 
 def _stiffness(series: _Series | None, x: _Series) -> np.ndarray | None:
     """
-    The stiffness estimate on the position samples (NaN before its first message).
+    Return the stiffness estimate on the position samples (NaN before its first message).
 
     None when the bag has no message on the topic.
     """
@@ -308,7 +308,7 @@ def _stiffness(series: _Series | None, x: _Series) -> np.ndarray | None:
 
 
 def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
-    """Unit normal from the largest desired force sample."""
+    """Return the unit normal from the largest desired force sample."""
     norms = np.linalg.norm(f_d_W, axis=1)
     k = int(np.argmax(norms))
     if not np.isfinite(norms[k]) or norms[k] <= 1e-12:

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from ..core.arm7 import panda_model, panda_scenario
-from ..core.scenario import ScenarioConfig, run_scenario
+from ..core.scenario import run_scenario, ScenarioConfig
 
 
 def _tick_us(cfg: ScenarioConfig, model=None) -> np.ndarray:
@@ -25,7 +25,7 @@ def _tick_us(cfg: ScenarioConfig, model=None) -> np.ndarray:
 
 
 def offline_figures() -> dict[str, float]:
-    """Controller step percentiles and the paper scenario's real-time factor."""
+    """Measure the controller step percentiles and the paper scenario's real-time factor."""
     step_us = _tick_us(ScenarioConfig(duration=20.0))
     panda = panda_model()
     panda_us = _tick_us(panda_scenario(panda, duration=5.0), panda)

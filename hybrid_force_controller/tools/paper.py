@@ -1,7 +1,5 @@
 """
-``paper`` executable: the scenario of section V of [1] offline, Figs.
-
-3-5 + metrics.
+``paper`` executable: the scenario of section V of [1] offline, Figs. 3-5 + metrics.
 
 ``ros2 run hybrid_force_controller paper --out DIR`` runs 20 s of the paper's scenario
 (lambda1 = 40, lambda2 = 0.1, Gamma = 70 I, k = 1700 N/m, q(0) = (0.657, 0.913),
@@ -16,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 from typing import Sequence
 
-from .analysis import RunLog, compute_metrics, json_safe
-from ..core.scenario import ScenarioConfig, run_scenario
+from .analysis import compute_metrics, json_safe, RunLog
+from ..core.scenario import run_scenario, ScenarioConfig
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -1,7 +1,8 @@
 """
-Figures 3-5 of the paper from a :class:`~hybrid_force_controller.tools.analysis.RunLog`.
+Figures 3-5 of the paper, and the online stiffness estimate when the run recorded it.
 
-And the online stiffness estimate (``fig6_stiffness.png``) when the run recorded it.
+The figures are drawn from a :class:`~hybrid_force_controller.tools.analysis.RunLog`; the
+stiffness estimate goes to ``fig6_stiffness.png``.
 
 Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
 """
@@ -9,9 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+import numpy as np
 
 from .analysis import RunLog, surface_axis, tangential_error
 
@@ -26,7 +27,7 @@ _AXIS_NAMES = 'xyz'
 
 
 def _new_figure(rows: int = 1) -> tuple[Figure, np.ndarray]:
-    """A figure with ``rows`` stacked axes sharing the time axis."""
+    """Create a figure with ``rows`` stacked axes sharing the time axis."""
     fig = Figure(figsize=_FIGSIZE, dpi=_DPI, layout='constrained')
     FigureCanvasAgg(fig)
     axes = np.atleast_1d(fig.subplots(rows, 1, sharex=True))
@@ -103,9 +104,9 @@ def _plot_parameters(log: RunLog, path: Path) -> Path:
 
 def _plot_stiffness(log: RunLog, path: Path) -> Path:
     """
-    The online stiffness estimate over time (gaps where unknown).
+    Plot the online stiffness estimate over time (gaps where unknown).
 
-    The true k dashed with a +-10 % band.
+    The true k, when known, is dashed with a +-10 % band.
     """
     fig, (ax,) = _new_figure(1)
     known = ~np.isnan(log.k_hat)
@@ -124,7 +125,7 @@ def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
     """
     Write ``fig3_position.png``, ``fig4_force.png`` and ``fig5_parameters.png``.
 
-    And ``fig6_stiffness.png`` when the log holds the stiffness estimate (``log.k_hat``).
+    Also ``fig6_stiffness.png`` when the log holds the stiffness estimate (``log.k_hat``).
 
     Parameters
     ----------

@@ -1,7 +1,5 @@
 """
-``report BAG --out DIR``: metrics and Figs.
-
-3-5 of a recorded controller run.
+``report BAG --out DIR``: metrics and Figs. 3-5 of a recorded controller run.
 
 Writes ``metrics.json`` (non-finite numbers such as an unknown wall time become ``null``;
 ``stiffness_estimate_n_per_m`` is the last recorded stiffness estimate, ``null`` when the
@@ -15,9 +13,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
-import sys
 from pathlib import Path
+import sys
 from typing import Sequence
 
 from .analysis import AnalysisError, compute_metrics, json_safe

@@ -1,0 +1,170 @@
+"""
+The parameter schema: every parameter's type, default, description, bounds and group.
+
+The ROS node declares its parameters from :data:`CONTROLLER_SCHEMA` and :data:`MODEL_SCHEMA`;
+``config/*.yaml`` only overrides values. Validation and freezing are in :mod:`.params`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ParamSpec', 'STIFFNESS_FIELDS']
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """
+    One parameter of the schema.
+
+    Its ROS type (``double``, ``integer``, ``double_array``, ``string_array``, ``string``,
+    ``bool``), default, description, closed bounds (``None``: unbounded) and the group it
+    configures (``law``, ``runtime`` or ``stiffness``).
+    """
+
+    name: str
+    kind: str
+    default: Any
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    positive: bool = False
+    read_only: bool = False
+    group: str = 'runtime'
+
+
+def _law(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='law', **kwargs)
+
+
+def _stf(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='stiffness', **kwargs)
+
+
+_S = ParamSpec
+CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
+    _S('rate_hz', 'double', 1000.0, 'Control rate, Hz (timer period 1/rate_hz).', 1.0, 10000.0,
+       read_only=True),
+    _S('joints', 'string_array', ['joint1', 'joint2'],
+       'Controlled joints, in the order of the effort command.', read_only=True),
+    _law('lambda1', 'double', 40.0, 'lambda1 of eq. (11), 1/s.', 0.0, 1e4, positive=True),
+    _law('lambda2', 'double', 0.1, 'lambda2 of eq. (11), force integral gain, m/(N s^2).',
+         0.0, 1e4, positive=True),
+    _law('gamma', 'double_array', [70.0],
+         'Gamma of eq. (26) (acting on k_a e): one value (times I), p diagonal entries or a '
+         'row-major p x p SPD matrix.'),
+    _law('n', 'double_array', [0.0, -1.0, 0.0],
+         'Contact normal in the base frame (into the surface); normalised on set.'),
+    _law('f_d', 'double', 1.0, 'Desired normal force the tool exerts on the surface, N.',
+         0.0, 1e3),
+    _law('k_d', 'double', 60.0, 'K_D of eq. (5), N s/m.', 0.0, 1e5, positive=True),
+    _law('k_null', 'double', 2.0,
+         'Null-space posture damping of redundant arms, N m s/rad.', 0.0, 1e5),
+    _law('k_max', 'double', 6000.0, 'Upper bound of the surface stiffness (eq. 29), N/m.',
+         0.0, 1e8, positive=True),
+    _law('k_s', 'double', 6000.0,
+         'Stiffness scaling the S-part of eq. (11) to a velocity (c = 1/k_s), N/m.',
+         0.0, 1e8, positive=True),
+    _law('k_a', 'double', 1500.0,
+         'Stiffness converting e to the force-rate units of the adaptation (26), N/m.',
+         0.0, 1e8, positive=True),
+    _law('adapt_error_limit', 'double', 0.1,
+         'The adaptation (26) integrates e saturated to this norm, m/s (transients such as '
+         'impacts do not throw theta_hat).', 0.0, 1e3, positive=True),
+    _law('theta_hat0', 'double_array', [],
+         'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',
+         read_only=True),
+    _law('theta_min', 'double_array', [],
+         'Lower projection bounds of theta_hat (empty: the parameter set default).'),
+    _law('theta_max', 'double_array', [],
+         'Upper projection bounds of theta_hat (empty: the parameter set default).'),
+    _law('integral_limit', 'double', 2.0,
+         'Anti-windup bound of |h| (eq. 20), N s.', 0.0, 1e6, positive=True),
+    _S('effort_limits', 'double_array', [],
+       'Per-joint effort limits, N m (empty: from the URDF).'),
+    _S('max_effort_rate', 'double', 0.0,
+       'Largest effort change per tick, N m (0: no rate limit).', 0.0, 1e6),
+    _S('force_filter_hz', 'double', 200.0, 'Cut-off of the force low-pass filter, Hz (0: off).',
+       0.0, 1e5),
+    _S('ref_center', 'double_array', [1.0, 1.6, 0.0], 'Reference centre, base frame, m.'),
+    _S('ref_amplitude', 'double_array', [0.1, 0.0, 0.0], 'Reference sine amplitude, m.'),
+    _S('ref_omega', 'double', 1.0, 'Reference sine frequency, rad/s.', 0.0, 1e3),
+    _S('ref_blend_time', 'double', 2.0,
+       'Blend from the start position into the reference over this time, s.', 0.0, 60.0),
+    _S('state_timeout', 'double', 0.1,
+       'Inputs older than this put the controller in safe mode, s.', 0.0, 10.0, positive=True),
+    _S('max_integration_dt', 'double', 0.005,
+       'Longest time one new state may integrate theta_hat and h (a late sample after a '
+       'gap integrates only this much), s.', 0.0, 1.0, positive=True),
+    _S('min_delay_margin', 'double', 0.005,
+       'Smallest loop delay the gains must tolerate (margin.py, at the current pose); a '
+       'set leaving less is refused, s (0: no check).', 0.0, 1.0),
+    _S('approach_speed', 'double', 0.025,
+       'Out of contact the tool moves into the surface at this speed, m/s (0: no approach, '
+       'only the force loop).', 0.0, 1.0),
+    _S('approach_limit', 'double', 0.05,
+       'Largest approach travel along n; then the arm holds and reports that the surface '
+       'was not found, m.', 0.0, 10.0, positive=True),
+    _S('wrench_limit', 'double', 100.0,
+       'Largest plausible force reading, N; larger readings (or a saturated sensor) are '
+       'dropped.', 0.0, 1e6, positive=True),
+    _S('wrench_rate_limit', 'double', 20000.0,
+       'Largest plausible change of the force reading, N/s; faster changes are dropped.',
+       0.0, 1e9, positive=True),
+    _S('reject_frozen_wrench', 'bool', True,
+       'Treat bit-identical force readings as stale (a frozen sensor leads to safe mode '
+       'after state_timeout).'),
+    # the online stiffness estimate (stiffness.py, docs/design.md): symbols (S0)-(S8)
+    _stf('stiffness_estimation', 'bool', True,
+         'Use the online stiffness estimate as k_s of eq. (11), with lambda2 = lambda2 '
+         'k_s/k_hat (false: k_s and lambda2 as set; the estimate is still reported).'),
+    _stf('k_min', 'double', 50.0, 'Lower bound of the stiffness estimate, N/m (< k_max).',
+         0.0, 1e8, positive=True),
+    _stf('stiffness_k_hat0', 'double', 0.0,
+         'Prior of the stiffness estimate and first k_s command, N/m (0: k_s).', 0.0, 1e8),
+    _stf('stiffness_time_constant', 'double', 2.0,
+         'Forgetting time constant T_f of the estimate, s of exciting contact.', 0.01, 1e4),
+    _stf('stiffness_excitation', 'double', 0.05,
+         'Excitation dead zone delta_f: samples with k_e |x_n - x_bar| below it are not '
+         'used, N.', 0.0, 1e3),
+    _stf('stiffness_excitation_window', 'double', 0.2,
+         'Time constant T_e of the mean x_bar in the excitation test, s.', 0.001, 1e3),
+    _stf('stiffness_valid_tol', 'double', 0.05,
+         'The estimate is valid (k_s may fall to it) when its standard deviation is below '
+         'this fraction of it.', 0.0, 1.0, positive=True),
+    _stf('stiffness_k_s_time_constant', 'double', 0.1,
+         'Time constant T_s with which k_s follows the estimate, s.', 0.0, 1e3),
+    _stf('stiffness_k_s_rate_down', 'double', 10.0,
+         'Largest relative decrease rate of k_s, |d ln k_s/dt|, 1/s.', 0.0, 1e3, positive=True),
+    _stf('stiffness_k_s_rate_up', 'double', 20.0,
+         'Largest relative increase rate of k_s, d ln k_s/dt, 1/s.', 0.0, 1e3, positive=True),
+    _stf('stiffness_k_max_margin', 'double', 0.2,
+         'Warn when the estimate is >= (1 - margin) k_max.', 0.0, 1.0),
+    _stf('stiffness_change_force', 'double', 0.2,
+         'Change test: a lasting prediction error above this restarts the estimate and '
+         'returns k_s to the configured one, N (0: off).', 0.0, 1e3),
+    _stf('stiffness_regularisation', 'double', 1e-2,
+         'Weight rho of the prior, in samples of a 1 N excursion.', 0.0, 1e6, positive=True),
+    _stf('stiffness_force_floor', 'double', 0.01,
+         'Floor of the residual standard deviation in the validity test, N.', 0.0, 1e3,
+         positive=True),
+)
+#: schema name -> StiffnessConfig field (k_max, k_s and force_filter_hz are shared).
+STIFFNESS_FIELDS = {s.name: 'enabled' if s.name == 'stiffness_estimation'
+                    else s.name.removeprefix('stiffness_')
+                    for s in CONTROLLER_SCHEMA if s.group == 'stiffness'}
+
+# The robot model, read once at start-up (shared by the controller and the sim node).
+MODEL_SCHEMA: tuple[ParamSpec, ...] = (
+    _S('robot_description', 'string', '',
+       "URDF XML (as robot_state_publisher provides it) or a URDF file path; '' = the "
+       "paper's 2-link arm.", read_only=True),
+    _S('base_link', 'string', '', "Base frame of the task space ('' = the URDF root); must "
+       'be fixed to the root.', read_only=True),
+    _S('end_effector_link', 'string', 'tool0', 'Frame whose origin is controlled.',
+       read_only=True),
+    _S('parameter_set', 'string', 'link_masses',
+       'Adapted parameters: link_masses, payload or full.', read_only=True),
+    _S('gravity', 'double_array', [0.0, -9.81, 0.0],
+       'Gravity in the URDF root frame, m/s^2 (z-up robots: [0, 0, -9.81]).', read_only=True),
+)

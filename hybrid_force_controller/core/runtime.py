@@ -3,8 +3,8 @@ What the controller node does between messages, as plain arrays (no rclpy here).
 
 The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
 converts the result back; the offline engine (engine.py) drives the same object. The
-runtime owns the latest inputs (inputs.py: checked, plausible), their staleness, the force
-filter, the reference, the contact state and an explicit mode (:class:`Mode`):
+runtime owns the latest inputs (latest_inputs.py: checked, plausible, their staleness, the
+force filter), the reference, the contact state and an explicit mode (:class:`Mode`):
 
 * ``WAITING``: no joint state or wrench yet (after start-up or a clock restart);
 * ``RUNNING``: the law of [1] with its force loop along n (control_law.py);
@@ -34,15 +34,13 @@ from .approach import Approach
 from .contact import ContactDetector, in_contact
 from .control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
 from .effort import EffortLimiter, SafeHold
-from .environment import f_W_from_sensor_wrench
-from .filters import LowPassFilter
-from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
-                     WrenchSample)
+from .inputs import InputError
+from .latest_inputs import LatestInputs
 from .margin import delay_margin
 from .modes import Mode, TickOutput
 from .params import build_params, ControllerParams, ParameterValidationError
 from .reference import BlendedReference, SineReference
-from .robot_model import ModelError, RobotModel, TaskKinematics
+from .robot_model import ModelError, RobotModel
 from .stiffness_loop import StiffnessLoop, StiffnessStatus
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
@@ -75,20 +73,13 @@ class ControllerRuntime:
         self.model = model
         self.ctrl = HybridForceController(model, params.law)
         self.counters = dict.fromkeys(_COUNTERS, 0)
-        self.mode, self.status, self.last_fault = Mode.WAITING, 'waiting for inputs', ''
+        self.mode, self.status = Mode.WAITING, 'waiting for inputs'
         self.last_safe_reason = ''
-        self._joints = JointInput(model.joint_names, params.runtime.joints)
-        self._gate = WrenchGate(model.model.existFrame, 0.0, 0.0)
+        self._in = LatestInputs(model, params.runtime, self.counters)
         self._limiter = EffortLimiter(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
         self._approach = Approach(0.0, 0.0)
-        self._filter = LowPassFilter(params.runtime.force_filter_hz)
         self._ref = BlendedReference(_sine(params), params.law.n, params.runtime.ref_blend_time)
-        self._state: JointSample | None = None
-        self._kin_of: JointSample | None = None  # the state _kin_cached belongs to
-        self._kin_cached: TaskKinematics | None = None
-        self._wrench: WrenchSample | None = None
-        self._wrench_prev_t, self._new_wrench = -math.inf, False
         self._clock = _Clock()
         self._r_n = 0.0
         self._rdot_n = 0.0
@@ -129,10 +120,10 @@ class ControllerRuntime:
         Inf before the first joint state or at a singular pose.
         """
         params = params or self._params
-        if self._state is None:
+        if self._in.state is None:
             return math.inf
         try:
-            return delay_margin(self.model, params.law, self._state.q,
+            return delay_margin(self.model, params.law, self._in.state.q,
                                 params.runtime.force_filter_hz, stiffness=params.stiffness)
         except (np.linalg.LinAlgError, ValueError):
             return math.inf
@@ -146,11 +137,6 @@ class ControllerRuntime:
         a stopped approach (``NO_SURFACE``) starts again from where the tool is.
         """
         old, new = self._params.runtime, params.runtime
-        if new.force_filter_hz != old.force_filter_hz:
-            value, ready = self._filter.value.copy(), self._filter.ready
-            self._filter = LowPassFilter(new.force_filter_hz)
-            if ready:
-                self._filter.update(value, 0.0)
         changed = any(not np.array_equal(getattr(new, k), getattr(old, k)) for k in
                       ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time'))
         changed = changed or not np.array_equal(params.law.n, self._params.law.n)
@@ -166,10 +152,9 @@ class ControllerRuntime:
         self._params = params
         self.ctrl.set_gains(params.law)
         self._stiffness.configure(params.stiffness, params.law.n, self.ctrl)
-        self._joints = JointInput(self.model.joint_names, rt.joints)
+        self._in.configure(rt)
         self._cmd_order = [self.model.joint_names.index(j) for j in rt.joints]
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
-        self._gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
         self._approach.configure(rt.approach_speed, rt.approach_limit)
         self._period = 1.0 / rt.rate_hz
         self.f_d_W = params.law.f_d * params.law.n
@@ -178,27 +163,16 @@ class ControllerRuntime:
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
                        qdot: Sequence[float] | None, t: float) -> None:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
-        t_last = -math.inf if self._state is None else self._state.t
-        try:
-            self._state = self._joints.sample(names, q, qdot, t, t_last)
-        except InputError as exc:
-            self._fault('joint_state_dropped', exc)
+        self._in.on_joint_state(names, q, qdot, t)
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
-        try:
-            sample = self._gate.check(frame_id, force, t)
-        except ImplausibleWrench as exc:
-            self._fault('wrench_implausible', exc)
-        except InputError as exc:
-            self._fault('wrench_dropped', exc)
-        self._wrench_prev_t = -math.inf if self._wrench is None else self._wrench.t
-        self._wrench, self._new_wrench = sample, True
+        self._in.on_wrench(frame_id, force, t)
 
-    def _fault(self, counter: str, exc: InputError) -> None:
-        self.counters[counter] += 1
-        self.last_fault = str(exc)
-        raise exc
+    @property
+    def last_fault(self) -> str:
+        """Return why the latest rejected input was rejected ('' if none was)."""
+        return self._in.last_fault
 
     def on_reference(self, x_d_W: Sequence[float]) -> None:
         """
@@ -216,12 +190,12 @@ class ControllerRuntime:
     def run_time(self) -> float:
         """Time since the run started, at the latest joint state (the reference's time)."""
         c = self._clock
-        return 0.0 if c.t0 is None or self._state is None else self._state.t - c.t0
+        return 0.0 if c.t0 is None or self._in.state is None else self._in.state.t - c.t0
 
     @property
     def state_stamp(self) -> float:
         """Stamp of the latest joint state, s (-inf before the first)."""
-        return -math.inf if self._state is None else self._state.t
+        return -math.inf if self._in.state is None else self._in.state.t
 
     @property
     def theta_hat(self) -> np.ndarray:
@@ -253,15 +227,15 @@ class ControllerRuntime:
         if t < c.t_tick - self._period:  # the clock jumped back (e.g. a restarted /clock)
             self.restart_clock()
         c.t_tick = max(c.t_tick, t)
-        if self._state is None or self._wrench is None:
+        if self._in.state is None or self._in.wrench is None:
             return self._output(None, Mode.WAITING, 'waiting for joint states and wrench')
-        f_W = self._filtered_force()
-        stale = self._stale(t)
+        f_W = self._in.filtered_force()
+        stale = self._in.stale(t)
         if stale:
             return self._safe(f_W, stale, t)
         dt_state, dt_int = self._state_step()
         f_n = float(self._params.law.n @ f_W)
-        touching = self._contact.update(f_n, self._params.law.f_d, self._state.t)
+        touching = self._contact.update(f_n, self._params.law.f_d, self._in.state.t)
         if self.mode in (Mode.WAITING, Mode.SAFE):
             self._start(touching)
         else:
@@ -269,10 +243,10 @@ class ControllerRuntime:
         approach = self._approach_ref(dt_state)
         ref = self._ref(self.run_time)
         try:
-            out = self.ctrl.step(self._state.q, self._state.qdot, f_W, ref, dt_int,
+            out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self._params.law.f_d),
                                  approach=approach, r_bias=self._handover_bias(),
-                                 kin=self._kin())
+                                 kin=self._in.kin())
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
@@ -283,20 +257,6 @@ class ControllerRuntime:
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref.x_d_W, f_W)
 
-    def _stale(self, t: float) -> str:
-        """Why the inputs are too old to act on ('' when they are fresh)."""
-        timeout = self._params.runtime.state_timeout
-        if t - self._state.t > timeout:
-            return 'joint states older than state_timeout: safe mode'
-        t_value = self._wrench.t
-        if self._params.runtime.reject_frozen_wrench and self._gate.frozen_since is not None:
-            t_value = self._gate.frozen_since
-        if t - t_value > timeout:
-            return ('wrench frozen (identical readings) or implausible for longer than '
-                    'state_timeout: safe mode' if t - self._wrench.t <= timeout else
-                    'wrench older than state_timeout: safe mode')
-        return ''
-
     def _state_step(self) -> tuple[float, float]:
         """
         Return the time since the state the last integration used, and the part to integrate.
@@ -304,7 +264,7 @@ class ControllerRuntime:
         The time is 0 if no state is new; the part of it theta_hat and h integrate is at most
         ``max_integration_dt``.
         """
-        c, t = self._clock, self._state.t
+        c, t = self._clock, self._in.state.t
         if t <= c.t_used:
             self.counters['stale_ticks'] += 1
             return 0.0, 0.0
@@ -318,8 +278,8 @@ class ControllerRuntime:
     def _start(self, touching: bool) -> None:
         """(Re)start: the reference blends from the arm's position and velocity."""
         c = self._clock
-        c.t0 = self._state.t if c.t0 is None else c.t0
-        kin = self._kin()
+        c.t0 = self._in.state.t if c.t0 is None else c.t0
+        kin = self._in.kin()
         pdot_W = np.zeros(3)
         pdot_W[self.model.task_index] = kin.xdot
         self._ref.start_from(self.run_time, kin.p_W, pdot_W)
@@ -334,7 +294,7 @@ class ControllerRuntime:
             self._enter_approach()
         elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
             r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._params.law.n @ f_W))
-            self._handover = (self._state.t, self._r_n - r_f, self._rdot_n - rdot_f)
+            self._handover = (self._in.state.t, self._r_n - r_f, self._rdot_n - rdot_f)
             self.mode = Mode.RUNNING
 
     def _handover_bias(self) -> tuple[float, float]:
@@ -345,14 +305,14 @@ class ControllerRuntime:
         over HANDOVER_S (r and rdot stay continuous, so the effort does; no integral wind-up).
         """
         t_c, dr, drdot = self._handover
-        s = (self._state.t - t_c) / HANDOVER_S
+        s = (self._in.state.t - t_c) / HANDOVER_S
         if self.mode != Mode.RUNNING or s >= 1.0:
             return 0.0, 0.0
         w = 0.5 * (1.0 + math.cos(math.pi * max(s, 0.0)))
         return w * dr, w * drdot
 
     def _enter_approach(self) -> None:
-        kin = self._kin()
+        kin = self._in.kin()
         x_n = float(self._params.law.n[self.model.task_index] @ kin.x)
         self._approach.start(x_n, self._r_n)
         self.counters['approach_entries'] += 1
@@ -361,7 +321,7 @@ class ControllerRuntime:
     def _approach_ref(self, dt: float) -> ApproachRef | None:
         if self.mode not in (Mode.APPROACH, Mode.NO_SURFACE):
             return None
-        kin = self._kin()
+        kin = self._in.kin()
         ref = self._approach.step(dt, float(self._params.law.n[self.model.task_index] @ kin.x))
         if self._approach.exhausted:
             self.mode = Mode.NO_SURFACE
@@ -374,11 +334,9 @@ class ControllerRuntime:
         The estimate theta_hat is kept; the force integral and the rate limiter restart.
         """
         self.counters['clock_restarts'] += 1
-        self._state = self._wrench = None
-        self._gate.reset()
+        self._in.reset()
         self._clock = _Clock()
         self.mode = Mode.WAITING
-        self._filter.reset()
         self._contact.reset()
         self._limiter.reset()
         self.ctrl.reset(self.ctrl.theta_hat)
@@ -393,27 +351,6 @@ class ControllerRuntime:
         self._limiter.reset()
         self.ctrl.h = 0.0
 
-    def _kin(self) -> TaskKinematics:
-        """Kinematics of the latest joint state, computed once per state."""
-        s = self._state
-        if self._kin_of is not s:
-            self._kin_cached, self._kin_of = self.model.kinematics(s.q, s.qdot), s
-        return self._kin_cached
-
-    def _filtered_force(self) -> np.ndarray:
-        """f_W: the newest wrench in the base frame, low-pass filtered over wrench stamps."""
-        if self._new_wrench:
-            w = self._wrench
-            frame = w.frame_id
-            R = (None if frame == self.model.base_link else self._kin().R_W_ee
-                 if frame == self.model.end_effector_link
-                 else self.model.frame_rotation(self._state.q, frame))
-            f_W = -w.F_S if R is None else f_W_from_sensor_wrench(R, w.F_S)
-            gap = w.t - self._wrench_prev_t
-            self._filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else self._period)
-            self._new_wrench = False
-        return self._filter.value
-
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
         """Hold (effort.SafeHold); the velocity is damped only while it is fresh."""
         if self.mode != Mode.SAFE:
@@ -421,7 +358,7 @@ class ControllerRuntime:
             self.last_safe_reason = status
             self._hold.latch(f_W)
         self.mode = Mode.SAFE
-        law, s = self._params.law, self._state
+        law, s = self._params.law, self._in.state
         fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.k_null, fresh)
         tau, _ = self._limiter(tau)

@@ -1,0 +1,118 @@
+"""
+The runtime's latest inputs: checked samples, their staleness, the filtered force (no rclpy).
+
+:class:`LatestInputs` keeps the newest joint state and wrench that passed the checks of
+inputs.py, computes the kinematics once per joint state, rotates each new wrench into the base
+frame and low-pass filters it over the wrench stamps, and says when the inputs are too old to act
+on. Rejected samples are counted in the caller's counters and raise the typed error. Times are
+seconds on the caller's clock.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from .environment import f_W_from_sensor_wrench
+from .filters import LowPassFilter
+from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
+                     WrenchSample)
+from .params import RuntimeConfig
+from .robot_model import RobotModel, TaskKinematics
+
+__all__ = ['LatestInputs']
+
+
+class LatestInputs:
+    """Newest joint state and wrench, kinematics once per state, f_W filtered, staleness."""
+
+    def __init__(self, model: RobotModel, rt: RuntimeConfig, counters: dict[str, int]) -> None:
+        self.model, self.counters = model, counters
+        self.last_fault = ''
+        self.gate = WrenchGate(model.model.existFrame, 0.0, 0.0)
+        self.filter = LowPassFilter(rt.force_filter_hz)
+        self.state: JointSample | None = None
+        self.wrench: WrenchSample | None = None
+        self._kin_of: JointSample | None = None  # the state _kin_cached belongs to
+        self._kin_cached: TaskKinematics | None = None
+        self._wrench_prev_t, self._new_wrench = -math.inf, False
+        self.configure(rt)
+
+    def configure(self, rt: RuntimeConfig) -> None:
+        """Install the joint order, wrench limits and period of a validated configuration."""
+        self._rt = rt
+        self._joints = JointInput(self.model.joint_names, rt.joints)
+        self.gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
+        self._period = 1.0 / rt.rate_hz
+        if rt.force_filter_hz != self.filter.cutoff_hz:
+            value, ready = self.filter.value.copy(), self.filter.ready
+            self.filter = LowPassFilter(rt.force_filter_hz)
+            if ready:
+                self.filter.update(value, 0.0)
+
+    def reset(self) -> None:
+        """Forget every input (a backward time jump)."""
+        self.state = self.wrench = None
+        self.gate.reset()
+        self.filter.reset()
+
+    def on_joint_state(self, names: Sequence[str], q: Sequence[float],
+                       qdot: Sequence[float] | None, t: float) -> None:
+        """Store a joint state mapped by name (reordered and extra joints are fine)."""
+        t_last = -math.inf if self.state is None else self.state.t
+        try:
+            self.state = self._joints.sample(names, q, qdot, t, t_last)
+        except InputError as exc:
+            self._fault('joint_state_dropped', exc)
+
+    def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
+        """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
+        try:
+            sample = self.gate.check(frame_id, force, t)
+        except ImplausibleWrench as exc:
+            self._fault('wrench_implausible', exc)
+        except InputError as exc:
+            self._fault('wrench_dropped', exc)
+        self._wrench_prev_t = -math.inf if self.wrench is None else self.wrench.t
+        self.wrench, self._new_wrench = sample, True
+
+    def _fault(self, counter: str, exc: InputError) -> None:
+        self.counters[counter] += 1
+        self.last_fault = str(exc)
+        raise exc
+
+    def kin(self) -> TaskKinematics:
+        """Return the kinematics of the latest joint state, computed once per state."""
+        s = self.state
+        if self._kin_of is not s:
+            self._kin_cached, self._kin_of = self.model.kinematics(s.q, s.qdot), s
+        return self._kin_cached
+
+    def filtered_force(self) -> np.ndarray:
+        """Return f_W: the newest wrench in the base frame, low-pass filtered over its stamps."""
+        if self._new_wrench:
+            w = self.wrench
+            frame = w.frame_id
+            R = (None if frame == self.model.base_link else self.kin().R_W_ee
+                 if frame == self.model.end_effector_link
+                 else self.model.frame_rotation(self.state.q, frame))
+            f_W = -w.F_S if R is None else f_W_from_sensor_wrench(R, w.F_S)
+            gap = w.t - self._wrench_prev_t
+            self.filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else self._period)
+            self._new_wrench = False
+        return self.filter.value
+
+    def stale(self, t: float) -> str:
+        """Say why the inputs are too old to act on at ``t`` ('' when they are fresh)."""
+        timeout = self._rt.state_timeout
+        if t - self.state.t > timeout:
+            return 'joint states older than state_timeout: safe mode'
+        t_value = self.wrench.t
+        if self._rt.reject_frozen_wrench and self.gate.frozen_since is not None:
+            t_value = self.gate.frozen_since
+        if t - t_value > timeout:
+            return ('wrench frozen (identical readings) or implausible for longer than '
+                    'state_timeout: safe mode' if t - self.wrench.t <= timeout else
+                    'wrench older than state_timeout: safe mode')
+        return ''

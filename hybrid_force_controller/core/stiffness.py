@@ -2,11 +2,10 @@
 Online estimate of the surface stiffness k along n, from the contact model (12)-(13) of [1].
 
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
-Interacting in Constrained Motion with Unknown Non-Rigid Environments".
-
-Pure Python: the 2 x 2 closed forms on floats need no numpy. Time is an argument, nothing
-reads a clock, nothing is allocated per call beyond Python floats. Equations (S0)-(S8) are
-this module's; docs/design.md, "Online stiffness estimate", gives the reasons and figures.
+Interacting in Constrained Motion with Unknown Non-Rigid Environments". Pure Python: the
+2 x 2 closed forms on floats need no numpy. Time is an argument, nothing reads a clock, nothing
+is allocated per call beyond Python floats. Equations (S0)-(S8) are this module's;
+docs/design.md, "Online stiffness estimate", gives the reasons and figures.
 
 Model: (12)-(13) along n, ``f_n = n^T f``, ``x_n = n^T x`` (base frame), in contact::
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+
 __all__ = ['TwoLinkArm']
 
 
@@ -57,7 +58,8 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
+        q : (2,) ndarray
+            Joint angles, rad.
 
         Returns
         -------
@@ -74,7 +76,8 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
+        q : (2,) ndarray
+            Joint angles, rad.
 
         Returns
         -------
@@ -93,8 +96,10 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
-        qdot : (2,) joint velocities, rad/s.
+        q : (2,) ndarray
+            Joint angles, rad.
+        qdot : (2,) ndarray
+            Joint velocities, rad/s.
 
         Returns
         -------
@@ -119,7 +124,8 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
+        q : (2,) ndarray
+            Joint angles, rad.
 
         Returns
         -------
@@ -157,8 +163,10 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
-        qdot : (2,) joint velocities, rad/s.
+        q : (2,) ndarray
+            Joint angles, rad.
+        qdot : (2,) ndarray
+            Joint velocities, rad/s.
 
         Returns
         -------
@@ -181,7 +189,8 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
+        q : (2,) ndarray
+            Joint angles, rad.
 
         Returns
         -------
@@ -204,8 +213,10 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q : (2,) joint angles, rad.
-        qdot : (2,) joint velocities, rad/s.
+        q : (2,) ndarray
+            Joint angles, rad.
+        qdot : (2,) ndarray
+            Joint velocities, rad/s.
 
         Returns
         -------
@@ -248,8 +259,10 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q, qdot : (2,) joint state, rad and rad/s.
-        qdot_r, qddot_r : (2,) reference joint velocity and acceleration.
+        q, qdot : (2,) ndarray
+            Joint state, rad and rad/s.
+        qdot_r, qddot_r : (2,) ndarray
+            Reference joint velocity and acceleration.
 
         Returns
         -------
@@ -279,8 +292,10 @@ class TwoLinkArm:
 
         Parameters
         ----------
-        q, qdot : (2,) joint state, rad and rad/s.
-        r, rdot : (2,) task reference velocity (m/s) and its derivative (m/s^2).
+        q, qdot : (2,) ndarray
+            Joint state, rad and rad/s.
+        r, rdot : (2,) ndarray
+            Task reference velocity (m/s) and its derivative (m/s^2).
 
         Returns
         -------

@@ -6,6 +6,7 @@ domain of their own set ROS_DOMAIN_ID themselves (or pass domain_id to rclpy.ini
 """
 import os
 
+
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
 

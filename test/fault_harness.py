@@ -17,27 +17,27 @@ assertion is about wall time).
 """
 from __future__ import annotations
 
-import signal
-import threading
 from contextlib import contextmanager
 from pathlib import Path
+import signal
+import threading
 from typing import Any, Callable, Iterator
 
-import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+import numpy as np
+import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
+from ros_helpers import NodeProcess, parse_diagnostics
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ros_helpers import NodeProcess, ROOT, parse_diagnostics
 
 RAW = '/fault_injection/raw'
 WALL_TIMEOUT = 90.0  # only against hangs
@@ -180,11 +180,11 @@ class Rig:
         self.sim = NodeProcess('sim_node.sim_node', logs / 'sim.log', domain_id,
                                ['-p', 'lockstep:=true', *sim_args, *remap])
         self.controller = NodeProcess('hybrid_force_controller.ros.controller_node',
-                                  logs / 'controller.log', domain_id,
-                                  ['-p', 'use_sim_time:=true', *controller_args,
-                                   # every injected message is counted: reliable inputs
-                                   # that keep a burst (the defaults keep only the newest)
-                                   '-p', 'sensor_qos:=reliable', '-p', 'sensor_depth:=10'])
+                                      logs / 'controller.log', domain_id,
+                                      ['-p', 'use_sim_time:=true', *controller_args,
+                                       # every injected message is counted: reliable inputs
+                                       # that keep a burst (the defaults keep only the newest)
+                                       '-p', 'sensor_qos:=reliable', '-p', 'sensor_depth:=10'])
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.proxy = Proxy(self.context, n_W, limits)
@@ -359,7 +359,7 @@ class Rig:
     @contextmanager
     def case(self) -> Iterator[dict[str, Any]]:
         """
-        Checks (1)-(3) of every case around its body.
+        Check (1)-(3) of every case around its body.
 
         The controller is alive and every effort it published meanwhile was finite and within the
         limits and rate limit.

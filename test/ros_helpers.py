@@ -17,13 +17,14 @@ Shared helpers of the tests that run over real DDS.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import signal
 import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
+
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS_FILE = ROOT / 'config' / 'params.yaml'
@@ -40,7 +41,7 @@ _DOMAIN_OFFSETS = {
 
 
 def domain_id(name: str) -> int:
-    """The ROS domain of test module ``name`` in this run (valid Fast DDS ids: 0-232)."""
+    """Return the ROS domain of test module ``name`` in this run (valid Fast DDS ids: 0-232)."""
     return (BASE_DOMAIN + _DOMAIN_OFFSETS[name]) % 233
 
 
@@ -137,7 +138,8 @@ class NodeProcess:
             return f.read()
 
     def tail(self, chars: int = 2500) -> str:
-        return f'--- {self.log_path.name} (tail)\n{self.log_since(max(0, self.log_size() - chars))}'
+        start = max(0, self.log_size() - chars)
+        return f'--- {self.log_path.name} (tail)\n{self.log_since(start)}'
 
     def __enter__(self) -> 'NodeProcess':
         return self.start()
@@ -167,7 +169,7 @@ class Spun:
         return node
 
     def node(self, name: str) -> Any:
-        """A plain node in this context, spun."""
+        """Create a plain node in this context, spun."""
         import rclpy
         return self.add(rclpy.create_node(name, context=self.context))
 
@@ -209,7 +211,7 @@ def wait_for(predicate: Callable[[], bool], what: str, timeout: float = WALL_TIM
 
 
 def wait_future(future: Any, timeout: float = WALL_TIMEOUT) -> Any:
-    """Result of a future completed by a background executor (fails after ``timeout``)."""
+    """Return the result of a future that a background executor completes (within ``timeout``)."""
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     assert done.wait(timeout), 'no answer from the service'
@@ -218,7 +220,7 @@ def wait_future(future: Any, timeout: float = WALL_TIMEOUT) -> Any:
 
 def parse_diagnostics(msg: Any) -> dict[str, Any]:
     """
-    The first status of a DiagnosticArray.
+    Parse the first status of a DiagnosticArray.
 
     ``level``, ``message``, ``name`` and every key-value, with ints, floats and booleans converted.
     """

@@ -4,25 +4,26 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from hybrid_force_controller.tools.analysis import (align, AnalysisError, compute_metrics,
+                                                    METRIC_KEYS, RunLog, surface_axis)
 import numpy as np
 import pytest
 
-from hybrid_force_controller.tools.analysis import (METRIC_KEYS, AnalysisError, RunLog, align,
-                                              compute_metrics, surface_axis)
 
 DT = 0.01
 N_SURF_W = np.array([0.0, -1.0, 0.0])  # the paper arm pushes along -y
 
 
 def make_log(duration: float = 10.0, **overrides) -> RunLog:
-    """A perfect run on the paper's task: x_d = 1 + 0.1 sin t, f_d = 1 N along n."""
+    """Build a perfect run on the paper's task: x_d = 1 + 0.1 sin t, f_d = 1 N along n."""
     t = np.arange(0.0, duration + DT / 2, DT)
     n = t.size
     x_d_W = np.column_stack([1.0 + 0.1 * np.sin(t), np.zeros(n), np.zeros(n)])
     f_d_W = np.tile(N_SURF_W, (n, 1))
-    fields = dict(t=t, x_W=x_d_W.copy(), x_d_W=x_d_W, f_W=f_d_W.copy(), f_d_W=f_d_W,
-                  n_W=N_SURF_W, theta_hat=np.column_stack([np.full(n, 1.3), 0.9 - 0.01 * t]),
-                  theta_names=('m1', 'm2'), in_contact=np.ones(n, dtype=bool))
+    fields = {'t': t, 'x_W': x_d_W.copy(), 'x_d_W': x_d_W, 'f_W': f_d_W.copy(), 'f_d_W': f_d_W,
+              'n_W': N_SURF_W,
+              'theta_hat': np.column_stack([np.full(n, 1.3), 0.9 - 0.01 * t]),
+              'theta_names': ('m1', 'm2'), 'in_contact': np.ones(n, dtype=bool)}
     fields.update(overrides)
     return RunLog(**fields)
 

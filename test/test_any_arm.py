@@ -6,19 +6,19 @@ test starts the controller node for the Panda as a subprocess in its own ROS dom
 """
 from pathlib import Path
 
+from hybrid_force_controller.core import scenario as scenario_module
+from hybrid_force_controller.core.arm7 import (PANDA_JOINTS, panda_model, PANDA_Q0, panda_scenario,
+                                               panda_urdf_path)
+from hybrid_force_controller.core.parameter_sets import project_physical
+from hybrid_force_controller.core.robot_model import default_urdf_path, ModelError, RobotModel
+from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from hybrid_force_controller.core.simulator import ArmSimulator
+from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pinocchio as pin
 import pytest
+from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 
-from hybrid_force_controller.core import scenario as scenario_module
-from hybrid_force_controller.tools.analysis import RunLog, compute_metrics
-from hybrid_force_controller.core.arm7 import PANDA_JOINTS, PANDA_Q0, panda_model, panda_scenario, \
-    panda_urdf_path
-from hybrid_force_controller.core.parameter_sets import project_physical
-from hybrid_force_controller.core.robot_model import ModelError, RobotModel, default_urdf_path
-from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
-from hybrid_force_controller.core.simulator import ArmSimulator
-from ros_helpers import NodeProcess, Spun, domain_id, wait_for, wait_future
 
 PLANAR3 = Path(__file__).resolve().parent / 'three_link_planar.urdf'
 SPATIAL3 = Path(__file__).resolve().parent / 'three_link_spatial.urdf'
@@ -137,19 +137,20 @@ def test_panda_closed_loop_with_mass_errors(panda):
 
 # --------------------------------------------------------------------------- 3. parameter sets
 def _payload_theta():
-    """A 1.5 kg near-point load 5 cm off the end body's joint origin, small inertia."""
+    """Return a 1.5 kg near-point load 5 cm off the end body's joint origin, small inertia."""
     return pin.Inertia(1.5, np.array([0.05, 0.0, 0.02]),
                        np.diag([2e-3, 3e-3, 4e-3])).toDynamicParameters()
 
 
 def _full_theta(model):
-    """The nominal pi with every body's mass and rotational inertia rescaled (consistent)."""
+    """Return the nominal pi with each body's mass and rotational inertia rescaled (consistent)."""
     rng = np.random.default_rng(7)
     out = []
     for j in range(1, model.model.njoints):
-        I = model.model.inertias[j]
+        inertia = model.model.inertias[j]
         a, b = rng.uniform(0.6, 1.5, 2)
-        out.append(pin.Inertia(a * I.mass, I.lever.copy(), b * I.inertia).toDynamicParameters())
+        out.append(pin.Inertia(a * inertia.mass, inertia.lever.copy(),
+                               b * inertia.inertia).toDynamicParameters())
     return np.concatenate(out)
 
 
@@ -251,7 +252,7 @@ R_root_W = pin.rpy.rpyToMatrix(*BASE_RPY)
 
 
 def _two_link_on_a_stand():
-    """The bundled 2-link URDF below a new root ``world``, base_link placed rotated."""
+    """Return the bundled 2-link URDF below a new root ``world``, base_link placed rotated."""
     text = default_urdf_path().read_text()
     anchor = '<link name="base_link"/>'
     assert text.count(anchor) == 1

@@ -10,11 +10,11 @@ error is 10 times f_d and acts along n): <= 0.15 s over the whole run. No ROS.
 """
 from __future__ import annotations
 
+from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig, ScenarioResult
+from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pytest
 
-from hybrid_force_controller.tools.analysis import RunLog, compute_metrics
-from hybrid_force_controller.core.scenario import ScenarioConfig, ScenarioResult, run_scenario
 
 POS_TARGET_M = 2e-4
 FORCE_TARGET_N = 0.02
@@ -67,7 +67,7 @@ def test_three_step_delay_stiff_surface_stays_stable():
 
 
 def test_force_noise_true_force_error():
-    """sigma = 0.05 N sensor noise: the TRUE contact force stays within 0.05 N RMS."""
+    """With sigma = 0.05 N sensor noise the TRUE contact force stays within 0.05 N RMS."""
     res, m = run(noise_sigma=0.05, seed=0)
     after = res.t >= T_START
     n = res.n_W

@@ -15,6 +15,7 @@ import sys
 import pytest
 from ros_helpers import domain_id, NodeProcess, Spun, wait_for
 
+
 REPO = Path(__file__).resolve().parents[1]
 PKG = 'hybrid_force_controller'
 EXECUTABLES = ('controller', 'sim', 'paper', 'bench', 'demo', 'report')

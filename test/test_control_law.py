@@ -1,7 +1,5 @@
 """
-Unit relations of the control law (eqs.
-
-(8), (11), (26), (29)) on the bundled 2-link arm.
+Unit relations of the control law (eqs. (8), (11), (26), (29)) on the bundled 2-link arm.
 
 Pure numpy + pinocchio: no ROS. The closed-loop checks use the offline plant
 (:class:`ArmSimulator`) and the paper's start pose.
@@ -10,20 +8,20 @@ from __future__ import annotations
 
 import math
 
+from hybrid_force_controller.core.control_law import (adapt_theta, ControlError,
+                                                      HybridForceController)
+from hybrid_force_controller.core.effort import EffortLimiter
+from hybrid_force_controller.core.environment import ElasticSurface
+from hybrid_force_controller.core.params import (build_params, check_stability,
+                                                 ParameterValidationError)
+from hybrid_force_controller.core.reference import blend_start, Reference, SineReference
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.scenario import PAPER_Q0
+from hybrid_force_controller.core.simulator import ArmSimulator
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from hybrid_force_controller.core.control_law import (ControlError, HybridForceController,
-                                                      adapt_theta)
-from hybrid_force_controller.core.effort import EffortLimiter
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.params import (ParameterValidationError, build_params,
-                                                 check_stability)
-from hybrid_force_controller.core.reference import Reference, SineReference, blend_start
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import PAPER_Q0
-from hybrid_force_controller.core.simulator import ArmSimulator
 
 Q0 = np.array(PAPER_Q0)
 DT = 1e-3
@@ -36,7 +34,7 @@ def model() -> RobotModel:
 
 def make_ctrl(model: RobotModel, **overrides) -> HybridForceController:
     """
-    A controller with the gains of ``build_params(model, overrides)``.
+    Build a controller with the gains of ``build_params(model, overrides)``.
 
     ``ctrl.full`` is the whole parameter set (for the reference).
     """
@@ -52,7 +50,7 @@ def sine_ref(params, t: float = 0.3) -> Reference:
 
 
 def task_velocity_from_pinocchio(model: RobotModel, q, qdot) -> np.ndarray:
-    """xdot = J(q) qdot computed independently of RobotModel.kinematics."""
+    """Compute xdot = J(q) qdot independently of RobotModel.kinematics."""
     J = pin.computeFrameJacobian(model.model, model.model.createData(), np.asarray(q, float),
                                  model.frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
     return (J[:3] @ np.asarray(qdot, float))[list(model.task_axes)]
@@ -81,7 +79,7 @@ def test_r_does_not_depend_on_the_velocity(model):
 
 
 def test_r_matches_the_documented_formula(model):
-    """r = (I - S)(xdot_d - l1 dx) - n (c l1 df_n + l2 h), c = 1 / k_s."""
+    """Check r = (I - S)(xdot_d - l1 dx) - n (c l1 df_n + l2 h), c = 1 / k_s."""
     ctrl = make_ctrl(model, lambda1=30.0, lambda2=0.05, k_s=4000.0, k_max=4000.0, f_d=2.0)
     ctrl.h = -0.2
     ax = list(model.task_axes)
@@ -117,7 +115,7 @@ def test_returned_e_is_xdot_minus_r(model):
 
 def _record_r(model: RobotModel, k_surface: float, steps: int = 1500):
     """
-    Closed loop of the paper's start (blend into the sine) on a surface of stiffness k.
+    Run a closed loop of the paper's start (blend into the sine) on a surface of stiffness k.
 
     Returns r(t_i), rdot(t_i) and the normal force f_n(t_i) at every tick; r is evaluated
     with the force integral h the controller holds at that tick.
@@ -170,7 +168,7 @@ def test_rdot_normal_part_differs_when_k_is_not_k_s(model):
     """
     Control: with k = k_s / 2 the model-based force rate k_s n^T xdot is wrong by 2x.
 
-    And the finite-difference check above fails on the normal component.
+    The finite-difference check above then fails on the normal component.
     """
     err, _, n = _fd_mismatch(model, k_surface=3000.0)
     assert np.abs(err @ n).max() > 0.05
@@ -319,7 +317,7 @@ def test_max_effort_rate_limits_the_per_tick_change(model):
 def test_non_finite_input_raises_and_keeps_state(model, which, value):
     ctrl = make_ctrl(model)
     ref = sine_ref(ctrl.full)
-    good = dict(q=Q0.copy(), qdot=np.zeros(2), f=np.array([0.0, -1.5, 0.0]))
+    good = {'q': Q0.copy(), 'qdot': np.zeros(2), 'f': np.array([0.0, -1.5, 0.0])}
     ctrl.step(good['q'], good['qdot'], good['f'], ref, DT)  # h and theta_hat move
     theta, h = ctrl.theta_hat.copy(), ctrl.h
     bad = dict(good, **{which: np.array(value)})
@@ -347,7 +345,7 @@ def test_zero_dt_recomputes_the_effort_and_integrates_nothing(model):
     np.testing.assert_array_equal(ctrl.theta_hat, theta)
     assert ctrl.h == h
     np.testing.assert_array_equal(again[0], again[2])
-    moved = ctrl.step(q, qdot, f_W, ref, DT)  # control: a positive dt does integrate
+    ctrl.step(q, qdot, f_W, ref, DT)  # control: a positive dt does integrate
     assert not np.array_equal(ctrl.theta_hat, theta) and ctrl.h != h
     moved_again = ctrl.step(q, qdot, f_W, ref, 0.0)
     assert not np.array_equal(moved_again.tau, again[0])

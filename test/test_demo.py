@@ -15,6 +15,7 @@ import pytest
 from ros_helpers import domain_id
 from rosbags.highlevel import AnyReader
 
+
 REPO = Path(__file__).resolve().parents[1]
 DURATION_S = 6.0
 RATE_HZ = 1000.0

@@ -1,22 +1,22 @@
 """
 The loop engine and its timing model (engine.py, timing.py).
 
-And what the runtime does with late ticks and gaps (issue 9): offline, deterministic, seeded. No
+Also what the runtime does with late ticks and gaps (issue 9): offline, deterministic, seeded. No
 ROS.
 """
 from __future__ import annotations
-
-import numpy as np
-import pytest
 
 from hybrid_force_controller.core.engine import LoopEngine
 from hybrid_force_controller.core.environment import ElasticSurface
 from hybrid_force_controller.core.params import build_params
 from hybrid_force_controller.core.robot_model import RobotModel
 from hybrid_force_controller.core.runtime import ControllerRuntime, Mode
-from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
+from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.simulator import ArmSimulator
 from hybrid_force_controller.core.timing import Schedule, Stall, TimingError, TimingModel
+import numpy as np
+import pytest
+
 
 P = 1e-3
 
@@ -83,9 +83,9 @@ def test_measured_model_has_multi_millisecond_stalls():
     assert lengths.min() >= 1e-3 and lengths.max() <= 30e-3 and lengths.max() > 10e-3
 
 
-@pytest.mark.parametrize('bad', [dict(period=0.0), dict(latency=-1e-3),
-                                 dict(stall_s=(2e-3, 1e-3)), dict(delay_steps=-1),
-                                 dict(stalls=(Stall('sim', 0.0, 0.01),))])
+@pytest.mark.parametrize('bad', [{'period': 0.0}, {'latency': -1e-3},
+                                 {'stall_s': (2e-3, 1e-3)}, {'delay_steps': -1},
+                                 {'stalls': (Stall('sim', 0.0, 0.01),)}])
 def test_inconsistent_timing_is_rejected(bad):
     with pytest.raises(TimingError):
         TimingModel(**bad)
@@ -133,10 +133,10 @@ def test_clamping_the_integration_step_halves_the_theta_hat_excursion():
 
 def test_old_gains_fail_where_the_new_ones_hold():
     """
-    The real-time failure of the old defaults (K_D 200.
+    Reproduce the real-time failure of the old defaults offline; the new defaults hold.
 
-    Adaptation on k_s e) reproduces offline with 2 ms one-way latency; the defaults hold there (10
-    ms margin).
+    The old defaults (K_D 200, adaptation on k_s e) fail with 2 ms one-way latency; the defaults
+    hold there (10 ms margin).
     """
     timing = TimingModel.ros_measured(seed=0, latency=2e-3)
     for overrides, holds in (({'k_d': 200.0, 'k_a': 6000.0}, False), ({}, True)):

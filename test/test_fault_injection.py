@@ -18,15 +18,15 @@ Seeds are fixed (the sim's noise is off; nothing here is random).
 import math
 import signal
 
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-
 from fault_harness import Rig, set_stamp, stamp_s  # noqa: E402
-from ros_helpers import domain_id  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
 from hybrid_force_controller.core.environment import sensor_wrench_from_f_W  # noqa: E402
 from hybrid_force_controller.core.robot_model import RobotModel  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from ros_helpers import domain_id  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+
 
 N_W = np.array([0.0, -1.0, 0.0])      # config/params.yaml: contact normal, into the surface
 LIMITS = np.array([100.0, 100.0])     # URDF effort limits of the bundled arm, N m
@@ -38,7 +38,8 @@ ARM_REACH = 2.0                       # l1 + l2, m: bounds |J^T| (N m per N)
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    rig = Rig(tmp_path_factory.mktemp('fault_injection'), domain_id('fault_injection'), N_W, LIMITS,
+    rig = Rig(tmp_path_factory.mktemp('fault_injection'), domain_id('fault_injection'), N_W,
+              LIMITS,
               sim_args=['-p', f'command_timeout:={COMMAND_TIMEOUT}'], controller_args=[])
     try:
         rig.start()
@@ -98,7 +99,7 @@ def wrench_copy(msg: WrenchStamped, force=None, frame=None) -> WrenchStamped:
 
 def sensor_force(rig: Rig, f_n: float) -> tuple[float, float, float]:
     """
-    What the wrist sensor (tool0) reads when the tool presses with ``f_n`` N along n.
+    Return what the wrist sensor (tool0) reads when the tool presses with ``f_n`` N along n.
 
     At the arm's latest raw joint state.
     """
@@ -107,7 +108,7 @@ def sensor_force(rig: Rig, f_n: float) -> tuple[float, float, float]:
 
 
 def counters(rig: Rig, t: float, what: str) -> dict:
-    """The /diagnostics status stamped after ``t`` (with a margin for messages in flight)."""
+    """Return the /diagnostics status stamped after ``t`` (a margin for messages in flight)."""
     return rig.diag_after(t + 0.02, what)
 
 
@@ -116,13 +117,13 @@ def delta(after: dict, before: dict, key: str) -> int:
 
 
 def assert_unaffected(rig: Rig, t0: float, what: str) -> None:
-    """The force never left the band since ``t0`` (tracking unaffected by the fault)."""
+    """Check that the force never left the band since ``t0`` (tracking unaffected by the fault)."""
     assert rig.proxy.t_force_bad < t0, (
         f'{what}: the force left {F_D} +- 0.05 N at t={rig.proxy.t_force_bad:.3f} s')
 
 
 def tool_motion(rig: Rig, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Times, tool positions and velocities (base frame) from the raw joint states."""
+    """Return times, tool positions and velocities (base frame) from the raw joint states."""
     rows = [(t, msg) for t, msg in list(rig.proxy.js_log) if t0 <= t <= t1]
     ts, ps, vs = [], [], []
     for t, msg in rows:
@@ -280,10 +281,10 @@ def test_out_of_order_wrench_stamp(healthy):
 
 def test_duplicate_stamps_are_harmless(healthy):
     """
-    Every message delivered twice with the same stamp (e.g.
+    Check that every message delivered twice with the same stamp is harmless.
 
-    a DDS re-send): equal stamps are not out of order, so nothing is dropped and tracking is
-    unaffected.
+    A DDS re-send, for example: equal stamps are not out of order, so nothing is dropped and
+    tracking is unaffected.
     """
     rig = healthy
     with rig.case():

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import math
 
+from hybrid_force_controller.core.environment import (ElasticSurface, f_W_from_sensor_wrench,
+                                                      sensor_wrench_from_f_W, SurfaceError)
+from hybrid_force_controller.core.filters import LowPassFilter
+from hybrid_force_controller.core.reference import blend_start, Reference, SineReference
 import numpy as np
 import pytest
 
-from hybrid_force_controller.core.environment import (ElasticSurface, SurfaceError,
-                                                 f_W_from_sensor_wrench, sensor_wrench_from_f_W)
-from hybrid_force_controller.core.filters import LowPassFilter
-from hybrid_force_controller.core.reference import Reference, SineReference, blend_start
 
 DT = 1e-3
 

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import ast
 import json
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / 'hybrid_force_controller'
@@ -75,7 +76,8 @@ def test_rclpy_is_imported_only_by_adapters():
     users = {p.relative_to(ROOT).parts[0] + '/' + p.relative_to(ROOT).parts[1]
              for p in [*PKG.rglob('*.py'), *(ROOT / 'sim_node').rglob('*.py')]
              if ('ext', 'rclpy') in _imports(p, p.parent.name)}
-    assert users and all(u.startswith(('hybrid_force_controller/ros', 'sim_node/')) for u in users), users
+    assert users, 'no module imports rclpy'
+    assert all(u.startswith(('hybrid_force_controller/ros', 'sim_node/')) for u in users), users
 
 
 _SCRIPT = """

@@ -23,6 +23,7 @@ from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+
 CTRL = 'hybrid_force_controller.ros.controller_node'
 NAME = 'hybrid_force_controller'
 

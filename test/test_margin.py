@@ -11,14 +11,14 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from hybrid_force_controller.core.margin import axis_margin, delay_margin
+from hybrid_force_controller.core.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.runtime import ControllerRuntime
+from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 import numpy as np
 import pytest
 
-from hybrid_force_controller.core.margin import axis_margin, delay_margin
-from hybrid_force_controller.core.params import ParameterValidationError, build_params
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime
-from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
 
 Q0 = np.array(PAPER_Q0)
 

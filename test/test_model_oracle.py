@@ -16,14 +16,14 @@ Interacting in Constrained Motion with Unknown Non-Rigid Environments".
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
+import sys
 
+from hybrid_force_controller.core.robot_model import default_urdf_path, ModelError, RobotModel
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from hybrid_force_controller.core.robot_model import ModelError, RobotModel, default_urdf_path
 
 TEST_DIR = Path(__file__).resolve().parent
 SPATIAL_URDF = TEST_DIR / 'three_link_spatial.urdf'
@@ -96,13 +96,13 @@ STATES_2LINK = _states_2link(N_STATES, seed=20240601)
 
 @pytest.fixture(scope='module')
 def arm2():
-    """The bundled 2-link arm of section V of [1]."""
+    """Load the bundled 2-link arm of section V of [1]."""
     return RobotModel.from_urdf()
 
 
 @pytest.fixture(scope='module')
 def arm3():
-    """The 3-DOF spatial test arm (square 3x3 task Jacobian)."""
+    """Load the 3-DOF spatial test arm (square 3x3 task Jacobian)."""
     return RobotModel.from_urdf(SPATIAL_URDF)
 
 
@@ -207,9 +207,9 @@ def test_jacobian_dot_matches_finite_difference(arm_and_states):
 @pytest.mark.parametrize('terms', ['task_terms', 'joint_terms'])
 def test_skew_symmetry(arm_and_states, terms):
     """
-    Mdot - 2 C is skew-symmetric, eq. (3), in task space (M_x.
+    Check that Mdot - 2 C is skew-symmetric, eq. (3), in task and joint space.
 
-    C_x) and in joint space (Mdot by central difference along qdot).
+    In task space (M_x, C_x) and in joint space (Mdot by central difference along qdot).
     """
     model, states = arm_and_states
     inertia_and_coriolis = getattr(model, terms)

@@ -16,6 +16,7 @@ from rclpy.qos import QoSProfile
 from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 from rosgraph_msgs.msg import Clock
 
+
 WALL_TIMEOUT = 300.0
 N_W = np.array([0.0, -1.0, 0.0])  # config/params.yaml
 P_TANGENT = np.eye(3) - np.outer(N_W, N_W)

@@ -20,6 +20,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from ros_helpers import domain_id
 from sim_node.sim_node import SimNode
 
+
 DOMAIN_ID = domain_id('nodes_params')
 TIMEOUT = 30.0
 PARAMS_FILE = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'

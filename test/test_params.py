@@ -4,13 +4,13 @@ from __future__ import annotations
 import math
 import re
 
+from hybrid_force_controller.core.params import (build_params, CONTROLLER_SCHEMA, ControllerParams,
+                                                 LawGains, ParameterValidationError, RuntimeConfig,
+                                                 schema_defaults)
+from hybrid_force_controller.core.robot_model import RobotModel
 import numpy as np
 import pytest
 
-from hybrid_force_controller.core.params import (CONTROLLER_SCHEMA, ControllerParams, LawGains,
-                                                 ParameterValidationError, RuntimeConfig,
-                                                 build_params, schema_defaults)
-from hybrid_force_controller.core.robot_model import RobotModel
 
 DOUBLES = [s.name for s in CONTROLLER_SCHEMA if s.kind == 'double']
 

@@ -20,6 +20,7 @@ from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_fo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+
 CTRL = 'hybrid_force_controller.ros.controller_node'
 
 

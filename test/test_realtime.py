@@ -29,6 +29,7 @@ from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_fo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+
 CTRL = 'hybrid_force_controller.ros.controller_node'
 N_W = np.array([0.0, -1.0, 0.0])
 P_TANGENT = np.eye(3) - np.outer(N_W, N_W)

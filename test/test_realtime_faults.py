@@ -19,6 +19,7 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from hybrid_force_controller.core.robot_model import RobotModel
 import numpy as np
 import pytest
 from rclpy.node import Node
@@ -29,7 +30,6 @@ from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_fo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from hybrid_force_controller.core.robot_model import RobotModel
 
 N_W = np.array([0.0, -1.0, 0.0])
 F_D, TOL = 1.0, 0.05
@@ -45,7 +45,7 @@ class _Watcher(Node):
     """
     True normal force (sim/contact_wrench), efforts, the controller's /diagnostics.
 
-    And a 500 Hz timer that publishes ``self.inject()`` between the real messages while set.
+    Also a 500 Hz timer that publishes ``self.inject()`` between the real messages while set.
     """
 
     def __init__(self, context) -> None:
@@ -140,7 +140,9 @@ def run_until(w: _Watcher, t: float) -> None:
 
 def settled_at(w: _Watcher, t0: float, hold: float = 0.5) -> float:
     """
-    The first time after ``t0`` from which the force stayed within TOL of f_d for ``hold`` s (waits for it; fails after 20 s of stamps).
+    Return the first time after ``t0`` from which the force stays within TOL of f_d ``hold`` s.
+
+    Waits for it; fails after 20 s of stamps.
     """
     def found() -> float | None:
         ft = w.forces(t0)

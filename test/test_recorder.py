@@ -15,6 +15,7 @@ from rclpy.node import Node  # noqa: E402
 from ros_helpers import domain_id  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 
+
 DOMAIN_ID = domain_id('recorder')
 TIMEOUT_S = 20.0
 COUNTS = {TOPIC_X: 5, TOPIC_WRENCH: 3, TOPIC_CONTACT_WRENCH: 2}

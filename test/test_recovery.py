@@ -8,18 +8,18 @@ input hook). No ROS: the same cases over DDS are in test_realtime_faults.py.
 """
 from __future__ import annotations
 
-import numpy as np
-import pytest
-
 from hybrid_force_controller.core.engine import Event, LoopEngine
 from hybrid_force_controller.core.environment import ElasticSurface
 from hybrid_force_controller.core.inputs import ImplausibleWrench, InputError, WrenchGate
 from hybrid_force_controller.core.params import build_params
 from hybrid_force_controller.core.robot_model import RobotModel
 from hybrid_force_controller.core.runtime import ControllerRuntime, Mode
-from hybrid_force_controller.core.scenario import PAPER_Q0, ScenarioConfig, run_scenario
+from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.simulator import ArmSimulator
 from hybrid_force_controller.core.timing import TimingModel
+import numpy as np
+import pytest
+
 
 F_D, APPROACH_SPEED = 1.0, 0.025
 T0, T1 = 6.0, 7.0  # fault phase

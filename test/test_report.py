@@ -4,22 +4,22 @@ from __future__ import annotations
 import json
 import math
 import os
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
+from hybrid_force_controller.tools import report
+from hybrid_force_controller.tools.analysis import compute_metrics
+from hybrid_force_controller.tools.bag_io import (BAG_VERSION, BagError, BagWriter, load_run,
+                                                  RECORD_TOPICS, REQUIRED_TOPICS,
+                                                  TOPIC_CONTACT_WRENCH, TOPIC_THETA_HAT,
+                                                  TOPIC_WRENCH, TOPIC_WRENCH_DESIRED, TOPIC_X,
+                                                  TOPIC_X_DESIRED, TYPESTORE)
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from hybrid_force_controller.tools import report
-from hybrid_force_controller.tools.analysis import compute_metrics
-from hybrid_force_controller.tools.bag_io import (BAG_VERSION, RECORD_TOPICS, REQUIRED_TOPICS,
-                                            TOPIC_CONTACT_WRENCH, TOPIC_THETA_HAT,
-                                            TOPIC_WRENCH, TOPIC_WRENCH_DESIRED, TOPIC_X,
-                                            TOPIC_X_DESIRED, TYPESTORE, BagError, BagWriter,
-                                            load_run)
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 T = TYPESTORE.types

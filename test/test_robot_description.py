@@ -16,6 +16,7 @@ from rclpy.parameter import Parameter
 from ros_helpers import domain_id, NodeProcess, parse_diagnostics, ROOT, Spun, wait_for
 from std_msgs.msg import String
 
+
 CTRL = 'hybrid_force_controller.ros.controller_node'
 PANDA = ROOT / 'config' / 'panda_params.yaml'
 WAITING = "waiting for the URDF on '/r1/robot_description'"

@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-import pytest
-
 from hybrid_force_controller.core.engine import LoopEngine
 from hybrid_force_controller.core.environment import ElasticSurface, sensor_wrench_from_f_W
 from hybrid_force_controller.core.params import build_params
@@ -24,6 +21,9 @@ from hybrid_force_controller.core.robot_model import RobotModel
 from hybrid_force_controller.core.runtime import ControllerRuntime, InputError
 from hybrid_force_controller.core.scenario import PAPER_Q0
 from hybrid_force_controller.core.simulator import ArmSimulator
+import numpy as np
+import pytest
+
 
 DT = 1e-3
 Q0 = np.array(PAPER_Q0)
@@ -66,7 +66,7 @@ class Loop:
         return self.engine.meas
 
     def feed(self, names=None, q=None, qdot=None) -> None:
-        """The current measurement straight into the runtime (names, q, qdot overridable)."""
+        """Feed the current measurement straight into the runtime (names, q, qdot overridable)."""
         m, t = self.meas, self.t
         names = list(self.model.joint_names) if names is None else names
         self.rt.on_joint_state(names, m.q if q is None else q,

@@ -6,12 +6,12 @@ no stale state).
 """
 from __future__ import annotations
 
-import numpy as np
-import pytest
-
 from hybrid_force_controller.core.reference import BlendedReference, SineReference
 from hybrid_force_controller.core.robot_model import RobotModel
+import numpy as np
+import pytest
 from test_runtime import Loop
+
 
 JUMP_BOUND_NM = 10.0  # 10 % of the 100 N m effort limit
 

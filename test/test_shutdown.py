@@ -21,6 +21,7 @@ from hybrid_force_controller.ros.load import cpu_seconds
 import pytest
 from ros_helpers import domain_id, node_env, NodeProcess, ROOT, wait_for
 
+
 ENTRY_POINTS = {
     'controller': 'hybrid_force_controller.ros.controller_node:main',
     'sim': 'sim_node.sim_node:main',

@@ -11,12 +11,12 @@ from __future__ import annotations
 import math
 import tracemalloc
 
-import numpy as np
-import pytest
-
 from hybrid_force_controller.core.filters import LowPassFilter
 from hybrid_force_controller.core.stiffness import (StiffnessConfig, StiffnessConfigError,
                                                     StiffnessError, StiffnessEstimator)
+import numpy as np
+import pytest
+
 
 DT = 1e-3
 X0 = -1.6107  # surface position along n, m (the paper scenario's start height)
@@ -61,7 +61,10 @@ def test_exact_recovery_noise_free(k, filter_hz):
 
 def test_filter_lag_biases_unless_x_is_filtered_alike():
     """
-    (S0): feeding a 50 Hz-filtered force with the filter switched off in the estimator (x_n unfiltered) biases k_hat; with the matching filter it is exact.
+    Check (S0): a filter on the force but not on x_n biases k_hat; the matching one is exact.
+
+    Feeding a 50 Hz-filtered force with the filter switched off in the estimator (x_n
+    unfiltered) biases k_hat; with the matching filter it is exact.
     """
     data = synthetic(1700.0, hz=10.0, filter_hz=50.0)  # omega tau = 0.2: |H| cos(phase) = 0.96
     matched, unmatched = make(force_filter_hz=50.0), make(force_filter_hz=0.0)
@@ -102,8 +105,8 @@ def test_valid_needs_twenty_exciting_samples():
 
 # ---------------------------------------------------------------- bounds and flags
 @pytest.mark.parametrize('k, expected, near', [(20.0, 50.0, False), (20000.0, 6000.0, True),
-                                              (3000.0, 3000.0, False),
-                                              (5000.0, 5000.0, True)])
+                                               (3000.0, 3000.0, False),
+                                               (5000.0, 5000.0, True)])
 def test_bounded_to_k_min_k_max_and_near_flag(k, expected, near):
     est = make(k_min=50.0, k_max=6000.0, k_max_margin=0.2)
     k_hat = feed(est, *synthetic(k))
@@ -181,7 +184,11 @@ def test_no_drift_without_excitation():
 @pytest.mark.parametrize('jump, detect_ms', [(0.5, 14), (5.0, 1), (-0.5, 14)])
 def test_a_lasting_misfit_is_a_change_of_the_surface(jump, detect_ms):
     """
-    (S9): the force leaves the fitted line at constant x (k or x0 changed under the tool): detected once (|eps| - 0.2 N) dt sums to 0.2 N x 20 ms; the fit restarts from the prior and the k_s command jumps up to k_s0; noise (sigma 0.05 N, filtered) on 100 s of a consistent force never triggers it.
+    Check (S9): a force that leaves the fitted line at constant x is a changed surface.
+
+    k or x0 changed under the tool: detected once (|eps| - 0.2 N) dt sums to 0.2 N x 20 ms;
+    the fit restarts from the prior and the k_s command jumps up to k_s0; noise (sigma 0.05 N,
+    filtered) on 100 s of a consistent force never triggers it.
     """
     est, f, x = settled(1700.0)
     ks_series(est, 5000)
@@ -300,18 +307,18 @@ def test_reset_restarts_from_the_prior():
 
 # ---------------------------------------------------------------- rejection
 @pytest.mark.parametrize('kw, name', [
-    (dict(k_min=0.0), 'k_min'), (dict(k_min=-1.0), 'k_min'),
-    (dict(k_min=7000.0), 'k_min < k_max'), (dict(k_hat0=10.0), 'k_hat0'),
-    (dict(k_hat0=7000.0), 'k_hat0'), (dict(time_constant=0.0), 'time_constant'),
-    (dict(excitation=-0.1), 'excitation'), (dict(valid_tol=0.0), 'valid_tol'),
-    (dict(valid_tol=1.5), 'valid_tol'), (dict(k_s_rate_down=0.0), 'k_s_rate_down'),
-    (dict(k_s_rate_up=-1.0), 'k_s_rate_up'), (dict(k_max_margin=1.0), 'k_max_margin'),
-    (dict(regularisation=0.0), 'regularisation'), (dict(k_max=math.nan), 'k_max'),
-    (dict(k_max=math.inf), 'k_max'), (dict(force_floor=0.0), 'force_floor'),
-    (dict(force_filter_hz=-1.0), 'force_filter_hz'), (dict(excitation_window='0.2'),
-                                                      'excitation_window'),
-    (dict(k_s_time_constant=True), 'k_s_time_constant'), (dict(enabled=1), 'enabled'),
-    (dict(k_s0=0.0), 'k_s0'), (dict(k_hat0=-1.0), 'k_hat0'),
+    ({'k_min': 0.0}, 'k_min'), ({'k_min': -1.0}, 'k_min'),
+    ({'k_min': 7000.0}, 'k_min < k_max'), ({'k_hat0': 10.0}, 'k_hat0'),
+    ({'k_hat0': 7000.0}, 'k_hat0'), ({'time_constant': 0.0}, 'time_constant'),
+    ({'excitation': -0.1}, 'excitation'), ({'valid_tol': 0.0}, 'valid_tol'),
+    ({'valid_tol': 1.5}, 'valid_tol'), ({'k_s_rate_down': 0.0}, 'k_s_rate_down'),
+    ({'k_s_rate_up': -1.0}, 'k_s_rate_up'), ({'k_max_margin': 1.0}, 'k_max_margin'),
+    ({'regularisation': 0.0}, 'regularisation'), ({'k_max': math.nan}, 'k_max'),
+    ({'k_max': math.inf}, 'k_max'), ({'force_floor': 0.0}, 'force_floor'),
+    ({'force_filter_hz': -1.0}, 'force_filter_hz'),
+    ({'excitation_window': '0.2'}, 'excitation_window'),
+    ({'k_s_time_constant': True}, 'k_s_time_constant'), ({'enabled': 1}, 'enabled'),
+    ({'k_s0': 0.0}, 'k_s0'), ({'k_hat0': -1.0}, 'k_hat0'),
 ])
 def test_bad_config_is_rejected_with_a_reason(kw, name):
     with pytest.raises(StiffnessConfigError, match=name) as exc:

@@ -16,14 +16,14 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from hybrid_force_controller.core.engine import Event
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig, ScenarioResult
+from hybrid_force_controller.core.timing import TimingModel
+from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pytest
 
-from hybrid_force_controller.core.engine import Event
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import ScenarioConfig, ScenarioResult, run_scenario
-from hybrid_force_controller.core.timing import TimingModel
-from hybrid_force_controller.tools.analysis import RunLog, compute_metrics
 
 STIFFNESSES = (300.0, 500.0, 1700.0, 5000.0)
 SCALES = (0.5, 1.5)
@@ -119,7 +119,7 @@ def test_steady_tracking_does_not_move_the_estimate(model):
                                     (300.0, 5000.0)])
 def test_a_surface_that_changes_under_the_tool_is_learned_again(model, k0, k1):
     """
-    k changes in contact at t = 6 s (the sim's surface swapped, x0 kept).
+    Learn k again when it changes in contact at t = 6 s (the sim's surface swapped, x0 kept).
 
     The misfit is detected (S9), k_s returns to 6000 and falls to the new estimate; without (S9)
     the old and new data gave a 'valid' 889 N/m for 3000 N/m. 300 -> 5000 N/m throws the tool off
@@ -160,6 +160,7 @@ def test_a_parameter_set_keeps_the_estimate_in_the_loop(model):
     unknown.
     """
     seen = []
+
     def set_(values):
         def action(rt, plant):
             before = rt.stiffness_status()
@@ -179,7 +180,9 @@ def test_a_parameter_set_keeps_the_estimate_in_the_loop(model):
 # ---------------------------------------------------------------- force step
 def step_run(model, k, extra=None, duration=13.0) -> float:
     """
-    2 % settling time of the true force after f_d 1 -> 2 N at t = 10 s (a parameter set through an Event), masses 50 % low, 2 periods of delay.
+    Return the 2 % settling time of the true force after f_d 1 -> 2 N at t = 10 s.
+
+    f_d is set through an Event (a parameter set); masses 50 % low, 2 periods of delay.
     """
     theta0 = (model.theta_nominal * 0.5).tolist()
     values = {'theta_hat0': theta0, **(extra or {})}
@@ -228,12 +231,12 @@ def test_k_s_alone_without_the_lambda2_rescale_does_not_equalise_the_step(steps)
     assert steps['k_s alone 500'] > 1.3 * steps['on 5000'], steps
 
 
-# ---------------------------------------------------------------- why k_s falls only to a valid estimate
+# ------------------------------------------------- why k_s falls only to a valid estimate
 def fixed_k_s_run(model, k, k_s) -> dict:
     """
-    The estimate off, the law's k_s forced to k_s from t = 0 (set_k_s.
+    Run with the estimate off and the law's k_s forced to k_s from t = 0.
 
-    As the estimate would set it: lambda2 = lambda2_0 k_s0 / k_s).
+    ``set_k_s``, as the estimate would set it: lambda2 = lambda2_0 k_s0 / k_s.
     """
     force = Event(0.0, lambda rt, plant: rt.ctrl.set_k_s(k_s))
     res = run(model, k, 0.5, duration=8.0, events=[force],
@@ -244,9 +247,10 @@ def fixed_k_s_run(model, k, k_s) -> dict:
 
 def test_a_fivefold_underestimate_breaks_the_loop_and_threefold_holds(model):
     """
-    k_s = k/5: the normal loop's fast pole (k/k_s) lambda1 = 200 rad/s meets the delayed velocity loop; the force oscillates (measured 0.145 N RMS over t >= 5 s, 7x the target).
+    Check that k_s = k/5 breaks the loop and k_s = k/3 holds.
 
-    k_s = k/3 holds.
+    At k_s = k/5 the normal loop's fast pole (k/k_s) lambda1 = 200 rad/s meets the delayed
+    velocity loop; the force oscillates (measured 0.145 N RMS over t >= 5 s, 7x the target).
     """
     bad = fixed_k_s_run(model, 5000.0, 1000.0)
     ok = fixed_k_s_run(model, 500.0, 500.0 / 3.0)
@@ -265,8 +269,8 @@ def _print_figures() -> None:
             for on in (True, False):
                 res = run(model, k, scale, overrides={'stiffness_estimation': on})
                 m = metrics(res)
-                print(f"{k:5.0f}  {scale:6.1f}  {'on' if on else 'off':8s}  "
-                      f"{time_within(res, 0.1):7.3f}  {res.k_hat[-1] / k - 1:+9.2%}  "
+                print(f'{k:5.0f}  {scale:6.1f}  {"on" if on else "off":8s}  '
+                      f'{time_within(res, 0.1):7.3f}  {res.k_hat[-1] / k - 1:+9.2%}  '
                       f"{m['rms_force_error_n']:9.4f}  {1e3 * m['rms_position_error_m']:10.4f}"
                       f"  {m['contact_lost_s']:6.3f}  {m['contact_lost_window_s']:11.3f}")
     for k in STIFFNESSES:

@@ -11,21 +11,21 @@ import dataclasses
 import math
 import tracemalloc
 
-import numpy as np
-import pytest
-
 from hybrid_force_controller.core.control_law import ControlError, HybridForceController
-from hybrid_force_controller.core.margin import (K_S_GRID, axis_margin, delay_margin,
-                                                 estimate_operating_points)
-from hybrid_force_controller.core.params import (CONTROLLER_SCHEMA, STIFFNESS_FIELDS,
-                                                 ParameterValidationError, build_params)
+from hybrid_force_controller.core.margin import (axis_margin, delay_margin,
+                                                 estimate_operating_points, K_S_GRID)
+from hybrid_force_controller.core.params import (build_params, CONTROLLER_SCHEMA,
+                                                 ParameterValidationError, STIFFNESS_FIELDS)
 from hybrid_force_controller.core.reference import SineReference
 from hybrid_force_controller.core.robot_model import RobotModel
 from hybrid_force_controller.core.runtime import ControllerRuntime
 from hybrid_force_controller.core.scenario import PAPER_Q0
 from hybrid_force_controller.core.stiffness import StiffnessConfig
 from hybrid_force_controller.core.stiffness_loop import StiffnessLoop
+import numpy as np
+import pytest
 from test_stiffness import DT, synthetic
+
 
 Q0 = np.array(PAPER_Q0)
 QDOT = np.array([0.1, -0.2])
@@ -42,7 +42,7 @@ def law(model, **values):
 
 
 def r_normal(ctrl: HybridForceController, f_n: float) -> tuple[float, float]:
-    """Normal parts of r and rdot at the paper pose for a normal force f_n (N)."""
+    """Return the normal parts of r and rdot at the paper pose for a normal force f_n (N)."""
     kin = ctrl.model.kinematics(Q0, QDOT)
     ref = SineReference(np.array([1.0, 1.6, 0.0]), np.array([0.1, 0.0, 0.0]), 1.0)(0.3)
     r, rdot = ctrl.reference_velocity(kin, ref, (f_n * N_W)[ctrl.model.task_index])[:2]
@@ -75,7 +75,8 @@ def test_set_k_s_keeps_lambda2_h_continuous_and_returns_to_the_gains(model):
     ctrl.h = -0.3
     r0, _ = r_normal(ctrl, 1.0)  # df_n = 0: r_n = -lambda2 h
     ctrl.set_k_s(500.0)
-    assert ctrl.h == pytest.approx(-0.3 * 0.1 / 1.2) and r_normal(ctrl, 1.0)[0] == pytest.approx(r0)
+    assert ctrl.h == pytest.approx(-0.3 * 0.1 / 1.2)
+    assert r_normal(ctrl, 1.0)[0] == pytest.approx(r0)
     ctrl.set_gains(dataclasses.replace(ctrl.gains, f_d=2.0))  # a parameter set keeps k_s
     assert (ctrl.k_s, ctrl.lambda2) == (500.0, pytest.approx(1.2))
     ctrl.set_gains(dataclasses.replace(ctrl.gains, f_d=1.0))
@@ -133,7 +134,8 @@ def test_stiffness_group_is_the_config_dataclass(model):
     specs = {s.name: s for s in CONTROLLER_SCHEMA if s.group == 'stiffness'}
     shared = {'k_max', 'k_s0', 'force_filter_hz'}
     fields = {f.name for f in dataclasses.fields(StiffnessConfig)}
-    assert set(STIFFNESS_FIELDS) == set(specs) and set(STIFFNESS_FIELDS.values()) == fields - shared
+    assert set(STIFFNESS_FIELDS) == set(specs)
+    assert set(STIFFNESS_FIELDS.values()) == fields - shared
     default = build_params(model).stiffness
     assert default == StiffnessConfig()  # schema defaults == dataclass defaults
     assert specs['stiffness_estimation'].default is True

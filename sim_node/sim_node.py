@@ -39,7 +39,11 @@ from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
 from hybrid_force_controller.ros.cdr import read_float64_array
 from hybrid_force_controller.ros.loop_timing import RateMeter
 from hybrid_force_controller.ros.model_source import expand_description
-from hybrid_force_controller.ros.node_params import check_choice, EXECUTOR_SPEC
+from hybrid_force_controller.ros.control_loop import set_thread_scheduling
+from hybrid_force_controller.ros.loop_timing import GapMeter
+from hybrid_force_controller.ros.node_params import (check_choice, check_cpus,
+                                                     CPU_AFFINITY_SPEC, EXECUTOR_SPEC,
+                                                     THREAD_PRIORITY_SPEC)
 from hybrid_force_controller.ros.parameters import declare_schema, ParameterBinder
 from hybrid_force_controller.ros.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS, DESCRIPTION_QOS,
                                              STATE_OUT_QOS)
@@ -79,7 +83,7 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
      'integrates (older time is dropped and counted).', 1, 100000, {}),
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
      0.0, 1e5, {}),
-)) + (EXECUTOR_SPEC,)
+)) + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
 
 
 class SimNode(Node):
@@ -116,12 +120,18 @@ class SimNode(Node):
         self.t_cmd = self.t_pub = -np.inf
         self.counters = {'steps': 0, 'commands': 0, 'commands_rejected': 0,
                          'watchdog_steps': 0, 'late_callbacks': 0, 'lost_periods': 0,
-                         'errors': 0}
+                         'errors': 0, 'command_timeouts': 0}
         self.command_rate = RateMeter()
+        self.command_gaps, self.state_gaps = GapMeter(), GapMeter()  # wall, per report
+        self._timed_out = False
         self._make_messages()
         self._make_endpoints(urdf)
         self._t_wall = time.monotonic()
         self._publish(self.sim.measure())
+        # the one thread that runs this node's callbacks (the DDS threads keep their policy)
+        for warning in set_thread_scheduling(v['thread_priority'],
+                                             check_cpus(v['cpu_affinity'])):
+            self.get_logger().warning(warning.replace('control thread', 'sim thread'))
 
     def _make_messages(self) -> None:
         """Messages built once and refilled in place by every publish."""
@@ -190,6 +200,7 @@ class SimNode(Node):
             return
         self.counters['commands'] += 1
         self.command_rate.count += 1
+        self.command_gaps.mark(time.monotonic())
         self.tau_cmd, self.t_cmd = tau[self.to_model], self._time()
         if self.lockstep:
             self._step(self.tau_cmd)
@@ -221,9 +232,12 @@ class SimNode(Node):
     def _effort(self) -> np.ndarray | None:
         """Held command; zeros once it is older than command_timeout; None (brakes) before."""
         if self.tau_cmd is None or self._time() - self.t_cmd <= self.command_timeout:
+            self._timed_out = False
             return self.tau_cmd
-        self.get_logger().warning('no valid command within command_timeout: zero effort',
-                                  throttle_duration_sec=1.0)
+        if not self._timed_out:  # one count and one warning per timeout
+            self._timed_out = True
+            self.counters['command_timeouts'] += 1
+            self.get_logger().warning('no valid command within command_timeout: zero effort')
         return np.zeros_like(self.tau_cmd)
 
     def _step(self, tau: np.ndarray | None, periods: int = 1) -> None:
@@ -262,6 +276,7 @@ class SimNode(Node):
             true.header.stamp = stamp
             self.pub_true.publish(true)
         self.n_pub += 1
+        self.state_gaps.mark(time.monotonic())
         if self.pub_clock is not None:
             self.clock_msg.clock = stamp
             self.pub_clock.publish(self.clock_msg)
@@ -272,6 +287,8 @@ class SimNode(Node):
                  else self.get_clock().now()).to_msg()
         values = {**self.counters,
                   'commands_per_s': f'{self.command_rate.rate(time.monotonic()):.4g}',
+                  **{k: f'{v:.4g}' for k, v in self.command_gaps.take('command_gap').items()},
+                  **{k: f'{v:.4g}' for k, v in self.state_gaps.take('state_gap').items()},
                   'sim_time_s': f'{self.sim.t:.4f}', 'lockstep': self.lockstep}
         status = DiagnosticStatus(
             level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: simulated arm',

@@ -37,10 +37,9 @@ from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidati
 from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
 from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
 from hybrid_force_controller.ros.cdr import read_float64_array
-from hybrid_force_controller.ros.loop_timing import RateMeter
-from hybrid_force_controller.ros.model_source import expand_description
 from hybrid_force_controller.ros.control_loop import set_thread_scheduling
-from hybrid_force_controller.ros.loop_timing import GapMeter
+from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
+from hybrid_force_controller.ros.model_source import expand_description
 from hybrid_force_controller.ros.node_params import (check_choice, check_cpus,
                                                      CPU_AFFINITY_SPEC, EXECUTOR_SPEC,
                                                      THREAD_PRIORITY_SPEC)
@@ -128,9 +127,16 @@ class SimNode(Node):
         self._make_endpoints(urdf)
         self._t_wall = time.monotonic()
         self._publish(self.sim.measure())
-        # the one thread that runs this node's callbacks (the DDS threads keep their policy)
-        for warning in set_thread_scheduling(v['thread_priority'],
-                                             check_cpus(v['cpu_affinity'])):
+        self._scheduling = (v['thread_priority'], check_cpus(v['cpu_affinity']))
+
+    def schedule_this_thread(self) -> None:
+        """
+        Give the calling thread, the one that spins this node, its real-time scheduling.
+
+        ``main`` calls it (the DDS threads keep their policy); a node built in another
+        program leaves that program's threads alone.
+        """
+        for warning in set_thread_scheduling(*self._scheduling):
             self.get_logger().warning(warning.replace('control thread', 'sim thread'))
 
     def _make_messages(self) -> None:
@@ -316,7 +322,12 @@ def main(args: list[str] | None = None) -> int:
         print_help('sim', "Simulated arm against an elastic surface (node 'sim'): efforts in, "
                    'joint_states + F/T wrench out.', HELP_PARAMETERS)
         return 0
-    return run_node(SimNode, 'sim', args)
+
+    def make_node() -> SimNode:
+        node = SimNode()
+        node.schedule_this_thread()
+        return node
+    return run_node(make_node, 'sim', args)
 
 
 if __name__ == '__main__':

@@ -89,7 +89,7 @@ class _Rig:
         self.spun.close()
 
     def settled(self, f_d: float, hold_s: float = 0.3, tol: float = 0.1) -> bool:
-        """The last ``hold_s`` of true force within ``tol`` of ``f_d``."""
+        """Say whether the last ``hold_s`` of true force is within ``tol`` of ``f_d``."""
         t = self.log.latest_t()
         _, f = self.log.forces(t - hold_s, t)
         return f.size > 10 and bool(np.all(np.abs(f - f_d) < tol))

@@ -31,14 +31,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
 import numpy as np
 
 from .params import LawGains
 from .robot_model import RobotModel
 from .stiffness import StiffnessConfig
 
-__all__ = ['K_S_GRID', 'MarginCache', 'axis_loop', 'axis_margin', 'delay_margin', 'estimate_operating_points',
-           'margins']
+__all__ = ['K_S_GRID', 'MarginCache', 'axis_loop', 'axis_margin', 'delay_margin',
+           'estimate_operating_points', 'margins']
 
 _W = np.logspace(-1.0, 4.5, 800)  # rad/s (the crossings found agree with 2000 points)
 _S_GRID = 1j * _W

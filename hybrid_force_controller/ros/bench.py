@@ -77,7 +77,7 @@ class _Diagnostics:
                     self.sim_history.append((time.monotonic(), values))
 
     def sim_reports(self, first: dict[str, str], last: dict[str, str]) -> list[dict[str, str]]:
-        """The sim's reports from ``first`` to ``last`` (both included)."""
+        """Return the sim's reports after ``first`` up to ``last``."""
         with self.lock:
             reports = [v for _, v in self.sim_history]
         ids = [id(r) for r in reports]
@@ -148,7 +148,7 @@ def _freeze(proc: subprocess.Popen, count: int, hold_s: float) -> list[float]:
 
 
 def _storm_values(rate_hz: float, duration_s: float) -> list[tuple[str, float]]:
-    """Sets alternating f_d and lambda1, ending on f_d = 1.5 N and lambda1 = 40."""
+    """Return the sets: f_d and lambda1 alternate, the last f_d is 1.5 N, the last lambda1 40."""
     count = max(2, int(round(rate_hz * duration_s)))
     n_f, n_l = (count + 1) // 2, count // 2
     f_d = [1.5 if (n_f - 1 - j) % 2 == 0 else 1.0 for j in range(n_f)]
@@ -175,7 +175,7 @@ def _param_storm(diag: _Diagnostics, rate_hz: float, duration_s: float) -> dict[
 
 
 def _sim_window(reports: list[dict[str, str]]) -> dict[str, float]:
-    """Worst effort and joint-state gaps at the plant over the sim's reports of a window."""
+    """Return the worst effort and joint-state gaps at the plant over the sim's reports."""
     def worst(key: str) -> float:
         values = [float(r.get(key, 'nan')) for r in reports]
         return max((v for v in values if v == v), default=float('nan'))
@@ -184,25 +184,26 @@ def _sim_window(reports: list[dict[str, str]]) -> dict[str, float]:
 
 
 def _controller_holds(ctrl: dict[str, str]) -> dict[str, float]:
-    """The controller's hold figures: the longest, and each callback kind's max and p99.9."""
+    """Return the controller's holds: the longest, and each callback kind's max and p99.9."""
     keys = [k for k in ctrl if k.startswith('hold_') or k.startswith('loop_hold_')]
     return {f'controller_{k}': float(ctrl[k]) for k in keys if not k.endswith('_count')}
 
 
-def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path) -> dict:
+def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
+            procs: dict[str, subprocess.Popen]) -> None:
+    """Start the processes of a run into ``procs`` (one by one: a signal stops those started)."""
     ros_args = ['--ros-args', '--params-file', str(find_config()), *cfg['params']]
     pin = ['taskset', '-c', '0'] if cfg['one_core'] else []
-    procs = {'sim': _start('sim', ['sim_node.sim_node', *ros_args], env, log_dir, pin),
-             'controller': _start('controller', [f'{PKG}.ros.controller_node', *ros_args],
-                                  env, log_dir, pin),
-             'bare': _start('bare', [f'{PKG}.ros.bare_node'], env, log_dir)}
+    procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args], env, log_dir, pin)
+    procs['controller'] = _start('controller', [f'{PKG}.ros.controller_node', *ros_args], env,
+                                 log_dir, pin)
+    procs['bare'] = _start('bare', [f'{PKG}.ros.bare_node'], env, log_dir)
     if cfg['load_duty'] > 0.0:
         bag = log_dir / f'bag_{time.monotonic_ns()}'
         procs['recorder'] = _start('recorder', [f'{PKG}.ros.recorder_node', str(bag)], env,
                                    log_dir)
         procs['load'] = _start('load', [f'{PKG}.ros.load', '--duty', str(cfg['load_duty'])],
                                env, log_dir)
-    return procs
 
 
 def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
@@ -212,7 +213,7 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
     procs: dict[str, subprocess.Popen] = {}
     extra: dict[str, Any] = {}
     try:
-        procs = _launch(cfg, env, log_dir)
+        _launch(cfg, env, log_dir, procs)
         _warm_up(diag, procs)
         meter = CpuMeter({n: p.pid for n, p in procs.items() if n != 'load'})
         sim0 = diag.wait_new('sim', time.monotonic())

@@ -32,17 +32,17 @@ import threading
 import time
 from typing import Any, Callable, Sequence
 
+from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
-from geometry_msgs.msg import WrenchStamped
 
 from .cdr import read_joint_state, read_wrench_stamped
-from ..core.loop_stats import HoldStats, LoopStats
 from .loop_timing import DelayStats, RateMeter
 from .runner import make_executor
 from .telemetry import EffortOutput
+from ..core.loop_stats import HoldStats, LoopStats
 from ..core.runtime import ControllerRuntime, InputError
 
 __all__ = ['ControlLoop', 'LoopSettings', 'set_thread_scheduling']
@@ -194,7 +194,7 @@ class ControlLoop:
         return self._clock.now().nanoseconds * 1e-9
 
     def _apply_handovers(self) -> None:
-        """The tick boundary: what the node handed over since the last tick takes effect."""
+        """Install what the node handed over since the last tick (the tick boundary)."""
         if self._pending:
             self.runtime.set_params(self._pending.popleft())
         if self._restart:

@@ -117,8 +117,9 @@ class ControllerNode(LifecycleNode):
             self.loop.telemetry_every = self._decimation()
 
     def _decimation(self) -> int:
-        """Telemetry every k-th tick (0: never)."""
-        rate, telemetry = self.runtime.params.runtime.rate_hz, self.node_values['telemetry_rate_hz']
+        """Return k: telemetry every k-th tick (0: never)."""
+        rate = self.runtime.params.runtime.rate_hz
+        telemetry = self.node_values['telemetry_rate_hz']
         return 0 if telemetry <= 0.0 else max(1, round(rate / telemetry))
 
     def _autostart(self, raise_errors: bool) -> None:

@@ -70,7 +70,7 @@ class GapMeter:
         self._t_last = t
 
     def take(self, prefix: str) -> dict[str, float]:
-        """``{prefix}_p99_ms`` and ``{prefix}_max_ms`` since the last take (NaN: none)."""
+        """Return the p99 and max gap since the last take, ms (``{prefix}_p99_ms``, NaN: none)."""
         gaps, self._k = self._buf[:self._k] * 1e3, 0
         if gaps.size == 0:
             return {f'{prefix}_p99_ms': math.nan, f'{prefix}_max_ms': math.nan}

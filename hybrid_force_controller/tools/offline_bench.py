@@ -44,7 +44,7 @@ def old_tree_step_us(old_tree: str) -> float:
 
 
 def tick_ratio(old_tree: str, rounds: int = 3) -> dict[str, float]:
-    """This tree's tick median against the old tree's step median, alternating ``rounds``."""
+    """Time this tree's tick against the old tree's step (medians), alternating ``rounds``."""
     new, old = [], []
     for _ in range(rounds):
         old.append(old_tree_step_us(old_tree))

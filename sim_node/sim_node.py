@@ -37,7 +37,7 @@ from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidati
 from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
 from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
 from hybrid_force_controller.ros.cdr import read_float64_array
-from hybrid_force_controller.ros.control_loop import set_thread_scheduling
+from hybrid_force_controller.ros.control_loop import schedule_process, set_thread_scheduling
 from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
 from hybrid_force_controller.ros.model_source import expand_description
 from hybrid_force_controller.ros.node_params import (check_choice, check_cpus,
@@ -133,10 +133,14 @@ class SimNode(Node):
         """
         Give the calling thread, the one that spins this node, its real-time scheduling.
 
-        ``main`` calls it (the DDS threads keep their policy); a node built in another
-        program leaves that program's threads alone.
+        SCHED_FIFO ``thread_priority`` (and ``cpu_affinity``) for it, two below for the
+        middleware's threads (``control_loop.schedule_process``). ``main`` calls it; a node
+        built in another program leaves that program's threads alone.
         """
-        for warning in set_thread_scheduling(*self._scheduling):
+        priority, cpus = self._scheduling
+        warnings = schedule_process(priority + 1, 'sim thread') if priority > 0 else []
+        warnings += set_thread_scheduling(priority, cpus)
+        for warning in warnings[:1]:
             self.get_logger().warning(warning.replace('control thread', 'sim thread'))
 
     def _make_messages(self) -> None:

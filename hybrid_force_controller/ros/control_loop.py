@@ -20,8 +20,9 @@ controller node's thread, and meets this one only through three lock-free hand-o
 This is the split realtime_tools and ros2_control make (parameters reach ``update()``
 through a real-time buffer; the update loop never publishes through a plain publisher
 from another thread). The thread asks for ``SCHED_FIFO`` at ``thread_priority`` (as
-controller_manager does, 50 by default) and for ``cpu_affinity``; only this thread gets
-them, not the DDS threads nor the node's. A refusal is reported, and the loop runs on.
+controller_manager does, 50 by default) and for ``cpu_affinity``; the executable's
+``main`` puts the node's thread and the middleware's just below (:func:`schedule_process`).
+A refusal is reported, and the loop runs on.
 """
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ from .telemetry import EffortOutput
 from ..core.loop_stats import HoldStats, LoopStats
 from ..core.runtime import ControllerRuntime, InputError
 
-__all__ = ['ControlLoop', 'LoopSettings', 'set_thread_scheduling']
+__all__ = ['ControlLoop', 'LoopSettings', 'schedule_process', 'set_thread_scheduling']
 
 CALLBACK_KINDS = ('joint_states', 'wrench', 'timer')  # what runs on the control thread
 WATCHDOG_PERIODS = 5  # tick_mode joint_state: the watchdog checks every 5 periods
@@ -92,6 +93,33 @@ def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
     return warnings
 
 
+def schedule_process(priority: int, what: str, keep: tuple[int, ...] = ()) -> list[str]:
+    """
+    Give the calling thread SCHED_FIFO ``priority - 1`` and the process's other threads ``- 2``.
+
+    Called by a node's ``main`` on the thread that spins the node, once the node exists: the
+    other threads then are the middleware's (DDS receive, events, shared-memory watchdog).
+    A loop that waits for a DDS thread to deliver its input, or for the node's thread to let
+    the GIL go, waits as long as ordinary processes keep those threads off the CPU (a
+    priority inversion: 167 ms holds and 66 ms effort gaps beside two busy processes); at
+    FIFO below the loop's they preempt ordinary processes, and the loop still preempts
+    them. ``keep``: thread ids left as they are (a control thread scheduled already).
+    ``priority`` 0 or 1 leaves the scheduler alone. Returns the warnings.
+    """
+    if priority <= 1:
+        return []
+    me = threading.get_native_id()
+    warnings = set_thread_scheduling(priority - 1, ())
+    others = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
+    for tid in others:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority - 2)))
+        except OSError as exc:
+            warnings.append(f'could not set SCHED_FIFO on the middleware threads ({exc})')
+            break
+    return [w.replace('control thread', what) for w in warnings[:1]]
+
+
 class ControlLoop:
     """The control thread of one controller (module docstring)."""
 
@@ -107,6 +135,7 @@ class ControlLoop:
         self.delay, self.commands = DelayStats(4096), RateMeter()
         self.timing = LoopStats(4096)  # tick periods and compute times
         self.scheduling: list[str] | None = None  # warnings of the thread's set-up, once run
+        self.native_id: int | None = None  # the thread's id, once it runs
         self._pending: deque = deque(maxlen=1)
         self._restart: deque = deque(maxlen=1)
         self._reference: deque = deque(maxlen=1)
@@ -160,6 +189,7 @@ class ControlLoop:
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
+        self.native_id = threading.get_native_id()
         self.scheduling = set_thread_scheduling(self.settings.thread_priority,
                                                 self.settings.cpu_affinity)
         executor = make_executor(self.settings.executor, self.node.context)

@@ -38,7 +38,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import String
 
-from .control_loop import ControlLoop, LoopSettings
+from .control_loop import ControlLoop, LoopSettings, schedule_process
 from .diagnostics import controller_status, EVENT_COUNTERS
 from .model_source import expand_description, missing_description_hint
 from .node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
@@ -93,6 +93,7 @@ class ControllerNode(LifecycleNode):
                           clock=steady)
         self._events: dict[str, int] = {}
         self._scheduling_reported = False
+        self._node_scheduling: list[str] = []
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics))
         self.create_timer(HOUSEKEEPING_S, self._guarded('housekeeping', self._housekeeping))
@@ -255,6 +256,17 @@ class ControllerNode(LifecycleNode):
         self.state_label = 'finalized'
         return _OK
 
+    def schedule_this_thread(self) -> None:
+        """
+        Schedule the node's thread and the middleware's below the control thread (``main``).
+
+        See :func:`~.control_loop.schedule_process`; a node built in another program leaves
+        that program's threads alone.
+        """
+        keep = () if self.loop is None or self.loop.native_id is None else (self.loop.native_id,)
+        self._node_scheduling = schedule_process(self.node_values['thread_priority'],
+                                                 'node thread', keep)
+
     def destroy_node(self) -> None:
         """Stop the control thread first (a node destroyed without a shutdown transition)."""
         if self.loop is not None:
@@ -297,8 +309,8 @@ class ControllerNode(LifecycleNode):
         if loop is None:
             return
         if loop.scheduling is not None and not self._scheduling_reported:
-            self._scheduling_reported = True
-            for warning in loop.scheduling:
+            self._scheduling_reported = True  # one warning: the loop's, else the node's
+            for warning in (loop.scheduling or self._node_scheduling)[:1]:
                 self.get_logger().warning(warning)
         while loop.events:
             self._log_event(loop.events.popleft())
@@ -370,7 +382,12 @@ def main(args: list[str] | None = None) -> int:
                    "'hybrid_force_controller'): joint_states + wrench in, efforts out.",
                    HELP_PARAMETERS)
         return 0
-    return run_node(ControllerNode, 'hybrid_force_controller', args)
+
+    def make_node() -> ControllerNode:
+        node = ControllerNode()
+        node.schedule_this_thread()
+        return node
+    return run_node(make_node, 'hybrid_force_controller', args)
 
 
 if __name__ == '__main__':

@@ -127,7 +127,9 @@ class SimNode(Node):
         self._make_endpoints(urdf)
         self._t_wall = time.monotonic()
         self._publish(self.sim.measure())
-        self._scheduling = (v['thread_priority'], check_cpus(v['cpu_affinity']))
+        # lockstep runs as fast as it can: at FIFO it would starve the machine (and its reader)
+        self._scheduling = (0 if self.lockstep else v['thread_priority'],
+                            check_cpus(v['cpu_affinity']))
 
     def schedule_this_thread(self) -> None:
         """

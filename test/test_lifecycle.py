@@ -91,7 +91,14 @@ def rig(tmp_path_factory):
 
 
 def _no_commands_while(w: _Watcher, procs, n_js: int = 300) -> None:
-    """Over the next ``n_js`` joint states, no effort command arrives."""
+    """
+    Over ``n_js`` joint states, no effort command arrives.
+
+    After ``n_js`` joint states first: this process may still hold commands sent before the
+    transition (its queue is 1000 deep, and on a loaded machine it reads late).
+    """
+    js0 = w.counts()[0]
+    wait_for(lambda: w.counts()[0] >= js0 + n_js, f'{n_js} joint states', alive=procs)
     js0, e0 = w.counts()
     wait_for(lambda: w.counts()[0] >= js0 + n_js, f'{n_js} joint states', alive=procs)
     assert w.counts()[1] == e0, 'commands while not active'

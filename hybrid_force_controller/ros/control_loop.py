@@ -12,7 +12,7 @@ controller node's thread, and meets this one only through three lock-free hand-o
 * to the loop: :meth:`submit` (a validated parameter set, installed at the next tick
   boundary), :meth:`restart`, :meth:`hold_reference` (``deque(maxlen=1)``: the newest wins);
 * from the loop: :attr:`telemetry` (every ``telemetry_every``-th tick's output, which the
-  node publishes every 20 ms), :attr:`events` (mode changes and
+  node publishes every 10 ms), :attr:`events` (mode changes and
   callback errors, logged by the node), :attr:`errors` (callback errors by kind) and
   :attr:`holds` (how long each callback held the thread,
   :class:`~hybrid_force_controller.core.loop_stats.HoldStats`).

@@ -59,7 +59,7 @@ TOPIC_WRENCH = 'force_torque_sensor_broadcaster/wrench'
 TOPIC_DESCRIPTION = 'robot_description'
 _OK, _FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 HOUSEKEEPING_S = 0.1  # the node drains the loop's events (logs) this often
-TELEMETRY_DRAIN_S = 0.02  # and publishes the telemetry the loop queued this often (wall)
+TELEMETRY_DRAIN_S = 0.01  # and publishes the telemetry the loop queued this often (wall)
 
 
 class ControllerNode(LifecycleNode):
@@ -184,7 +184,13 @@ class ControllerNode(LifecycleNode):
         return LoopSettings(topics, sensor_in_qos(nv['sensor_qos'], nv['sensor_depth']),
                             1.0 / self.runtime.params.runtime.rate_hz, self._tick_mode(),
                             nv['executor'], bool(self.get_parameter('use_sim_time').value),
-                            nv['thread_priority'], nv['cpu_affinity'])
+                            self._thread_priority(), nv['cpu_affinity'])
+
+    def _thread_priority(self) -> int:
+        """Return ``thread_priority``, or 0 with sim time (a lockstep loop runs flat out)."""
+        if self.get_parameter('use_sim_time').value:
+            return 0
+        return self.node_values['thread_priority']
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
@@ -264,8 +270,7 @@ class ControllerNode(LifecycleNode):
         that program's threads alone.
         """
         keep = () if self.loop is None or self.loop.native_id is None else (self.loop.native_id,)
-        self._node_scheduling = schedule_process(self.node_values['thread_priority'],
-                                                 'node thread', keep)
+        self._node_scheduling = schedule_process(self._thread_priority(), 'node thread', keep)
 
     def destroy_node(self) -> None:
         """Stop the control thread first (a node destroyed without a shutdown transition)."""

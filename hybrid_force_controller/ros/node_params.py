@@ -21,8 +21,9 @@ EXECUTOR_SPEC = _S('executor', 'string', 'events',
                    "'single_threaded'.", read_only=True)
 THREAD_PRIORITY_SPEC = _S(
     'thread_priority', 'integer', 50,
-    'SCHED_FIFO priority of the control thread (as controller_manager sets it: 50); 0 leaves '
-    'the scheduler alone. Refused by the OS (no rtprio limit): one warning, and it runs on.',
+    'SCHED_FIFO priority of the control thread (as controller_manager sets it: 50; the '
+    "node's thread and the middleware's run 1 and 2 below); 0 leaves the scheduler alone, as "
+    'does sim time (lockstep). Refused by the OS (no rtprio limit): one warning, it runs on.',
     0, 99, read_only=True)
 CPU_AFFINITY_SPEC = _S(
     'cpu_affinity', 'integer_array', [],

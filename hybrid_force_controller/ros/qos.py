@@ -7,7 +7,10 @@ The QoS of every topic of the package, in one place (documented in README "Topic
   drivers, ``qos_profile_sensor_data``); ``sensor_qos:=reliable`` asks for reliable.
 * Effort command: RELIABLE, KEEP_LAST 1 (matches ros2_control's JointGroupEffortController,
   which subscribes reliable; a slow reader gets the newest command, never a queue).
-* Telemetry, ``~/reference`` and ``/diagnostics``: RELIABLE, KEEP_LAST 10 (the ROS default).
+* Telemetry: RELIABLE, KEEP_LAST 100: the controller node publishes what the control thread
+  queued every 10 ms, so at ``telemetry_rate_hz`` 1000 a burst of 10 per topic goes out at once
+  (a history of 10 would drop samples a reliable reader has not acknowledged yet).
+* ``~/reference`` and ``/diagnostics``: RELIABLE, KEEP_LAST 10 (the ROS default).
 * ``robot_description``: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST 1 (robot_state_publisher's).
 * ``/clock`` (lockstep sim): RELIABLE, KEEP_LAST 1.
 """
@@ -16,9 +19,10 @@ from __future__ import annotations
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
 __all__ = ['CLOCK_QOS', 'COMMAND_QOS', 'DEFAULT_QOS', 'DESCRIPTION_QOS', 'STATE_OUT_QOS',
-           'sensor_in_qos']
+           'TELEMETRY_QOS', 'sensor_in_qos']
 
 DEFAULT_QOS = QoSProfile(depth=10)
+TELEMETRY_QOS = QoSProfile(depth=100)
 COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE)
 STATE_OUT_QOS = COMMAND_QOS  # the sim's joint_states / wrench publishers: reliable, newest

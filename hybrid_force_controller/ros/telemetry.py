@@ -17,7 +17,7 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 import numpy as np
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
-from .qos import COMMAND_QOS, DEFAULT_QOS
+from .qos import COMMAND_QOS, TELEMETRY_QOS
 
 __all__ = ['ControllerOutputs', 'EffortOutput', 'TOPIC_COMMANDS']
 
@@ -65,13 +65,13 @@ class ControllerOutputs:
                         self.f_d.wrench.force, self.e.vector)
         topics = (('~/x', self.x), ('~/x_desired', self.x_d), ('~/wrench', self.f),
                   ('~/wrench_desired', self.f_d), ('~/error', self.e))
-        self.telemetry = [(node.create_publisher(type(m), t, DEFAULT_QOS), m)
+        self.telemetry = [(node.create_publisher(type(m), t, TELEMETRY_QOS), m)
                           for t, m in topics]
         self.telemetry.append((node.create_publisher(Float64MultiArray, '~/theta_hat',
-                                                     DEFAULT_QOS), self.theta_msg))
+                                                     TELEMETRY_QOS), self.theta_msg))
         self.k_msg = Float64()  # the stiffness estimate, N/m (NaN while unknown)
         self.telemetry.append((node.create_publisher(Float64, '~/stiffness_estimate',
-                                                     DEFAULT_QOS), self.k_msg))
+                                                     TELEMETRY_QOS), self.k_msg))
 
     def publish_telemetry(self, out: Any, stamp_ns: int) -> None:
         """Publish the tick's positions, forces, error and theta_hat (base frame)."""

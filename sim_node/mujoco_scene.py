@@ -1,0 +1,230 @@
+"""
+The MuJoCo scene of ``physics:=mujoco``: the sim's URDF, a sphere tool, a plane, a wrist sensor.
+
+:func:`build_scene` compiles the robot from the same URDF and ``joints`` as the controller's
+model (the other joints deleted: welded at 0, as the reduced pinocchio model locks them), with
+``fusestatic`` off so every URDF link stays a body, point masses accepted
+(``boundinertia``) and gravity from the model. It adds
+
+* a tool body ``hfc_tool`` on ``end_effector_link`` (same frame) carrying a sphere of
+  ``tool_radius`` and ``tool_mass`` centred on the link's origin, and a site there with a
+  ``force`` + ``torque`` sensor pair: the wrist sensor, in the end-effector frame;
+* a plane ``hfc_surface`` through the surface point with its normal (``n_W`` points into the
+  surface, the plane's +z out of it), in contact with the sphere only, through an explicit
+  pair (elliptic cone, ``impratio`` 1, no-slip iterations when ``surface_friction`` > 0).
+
+Contact stiffness: MuJoCo's negative ``solref`` is not N/m. With the flat impedance
+``solimp = [d, d, ...]`` the static stiffness is ``k = -solref[0] / ((1 - d) tran)``, ``tran``
+the tool body's ``body_invweight0`` (known once compiled), so :func:`set_surface` sets
+``solref = -(1 - d) tran [k, c]`` on the compiled model. Link masses ``theta`` (the
+``link_masses`` set) scale each pinocchio body's URDF links, keeping their geometry.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from hybrid_force_controller.core.environment import ElasticSurface
+from hybrid_force_controller.core.params import ParameterValidationError
+from hybrid_force_controller.core.robot_model import RobotModel
+import mujoco
+import numpy as np
+
+from .mujoco_params import MujocoOptions
+
+__all__ = ['D_IMPEDANCE', 'Scene', 'build_scene', 'set_surface']
+
+TOOL_BODY, TOOL_GEOM, SURFACE_GEOM, FT_SITE = 'hfc_tool', 'hfc_tool_sphere', 'hfc_surface', \
+    'hfc_ft_site'
+D_IMPEDANCE = 0.01  # flat solimp: the impedance d at every depth
+SOLIMP = (D_IMPEDANCE, D_IMPEDANCE, 0.001, 0.5, 2.0)
+SURFACE_BODY = 'hfc_surface_body'
+NOSLIP_ITERATIONS = 10
+
+
+@dataclass
+class Scene:
+    """
+    A compiled scene and the indices the plant reads.
+
+    ``qpos``/``dof`` are the model's joints (RobotModel order); ``R_root_W`` and ``o_W`` map
+    base-frame vectors and points to MuJoCo's world (the URDF root).
+    """
+
+    model: mujoco.MjModel
+    qpos: np.ndarray
+    dof: np.ndarray
+    ee_body: int
+    tool_body: int
+    mocap: int
+    force_adr: int
+    torque_adr: int
+    R_W_root: np.ndarray
+    o_W: np.ndarray
+    tran: float
+    damping: float
+
+
+def _urdf_text(urdf: str | Path) -> str:
+    text = str(urdf)
+    return text if text.lstrip().startswith('<') else Path(text).read_text()
+
+
+def _delete_locked_joints(spec: mujoco.MjSpec, keep: tuple[str, ...]) -> None:
+    """Delete every joint not controlled (welded at 0, so 0 must be in range), their mimics."""
+    gone = {j.name for j in spec.joints if j.name not in keep}
+    for eq in list(spec.equalities):  # URDF mimic joints become joint equalities
+        if {eq.name1, eq.name2} & gone:
+            spec.delete(eq)
+    for joint in list(spec.joints):
+        if joint.name in keep:
+            continue
+        lo, hi = joint.range
+        if joint.limited != mujoco.mjtLimited.mjLIMITED_FALSE and not lo <= 0.0 <= hi:
+            raise ParameterValidationError(
+                f"physics:=mujoco welds the locked joint '{joint.name}' at 0, outside its "
+                f'limits [{lo:g}, {hi:g}]; control it (joints) or use physics:=paper')
+        spec.delete(joint)
+
+
+def _joint_of_body(spec: mujoco.MjSpec) -> dict[str, str]:
+    """Body name -> name of the nearest joint that moves it ('' for the fixed base)."""
+    out: dict[str, str] = {}
+
+    def walk(body, joint: str) -> None:
+        joints = list(body.joints)
+        joint = joints[-1].name if joints else joint
+        out[body.name] = joint
+        for child in body.bodies:
+            walk(child, joint)
+    walk(spec.worldbody, '')
+    return out
+
+
+def _scale_masses(spec: mujoco.MjSpec, model: RobotModel, theta: np.ndarray | None) -> None:
+    """Scale every link moved by joint j by theta_j / m_j (the link_masses set)."""
+    if theta is None:
+        return
+    if model.parameter_set.name != 'link_masses':
+        raise ParameterValidationError('physics:=mujoco takes masses for the link_masses '
+                                       f'parameter set only, not {model.parameter_set.name}')
+    nominal = dict(zip(model.theta_names, model.theta_nominal))
+    scale = {name[2:]: float(t) / nominal[name] for name, t in zip(model.theta_names, theta)}
+    for body_name, joint in _joint_of_body(spec).items():
+        s = scale.get(joint)
+        if s is None or body_name == 'world':
+            continue
+        body = spec.body(body_name)
+        body.mass *= s
+        if np.isfinite(body.fullinertia[0]):
+            body.fullinertia = body.fullinertia * s
+        body.inertia = body.inertia * s
+
+
+def _configure_joints(spec: mujoco.MjSpec, opts: MujocoOptions) -> None:
+    for joint in spec.joints:
+        joint.damping = [opts.joint_damping, 0.0, 0.0]
+        joint.frictionloss = opts.joint_friction
+        if not opts.joint_limits:
+            joint.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+    for geom in spec.geoms:  # the URDF's own geoms collide with nothing
+        geom.contype = geom.conaffinity = 0
+
+
+def _add_tool(spec: mujoco.MjSpec, ee_link: str, opts: MujocoOptions) -> None:
+    """Tool body on the end-effector link: sphere, mass, sensor site, force+torque sensors."""
+    try:
+        parent = spec.body(ee_link)
+    except Exception:  # noqa: BLE001 - the binding's lookup error type varies
+        parent = None
+    if parent is None:
+        raise ParameterValidationError(f"physics:=mujoco needs end_effector_link '{ee_link}' "
+                                       'to be a URDF link')
+    r, m = opts.tool_radius, opts.tool_mass
+    tool = parent.add_body(name=TOOL_BODY, pos=[0.0, 0.0, 0.0])
+    tool.explicitinertial = True
+    tool.mass = m
+    tool.inertia = [0.4 * m * r * r] * 3
+    tool.add_geom(name=TOOL_GEOM, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0.0, 0.0],
+                  mass=0.0, contype=0, conaffinity=0, rgba=[0.9, 0.4, 0.1, 1.0])
+    tool.add_site(name=FT_SITE, pos=[0.0, 0.0, 0.0])
+    for kind, name in ((mujoco.mjtSensor.mjSENS_FORCE, 'hfc_ft_force'),
+                       (mujoco.mjtSensor.mjSENS_TORQUE, 'hfc_ft_torque')):
+        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE)
+
+
+def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions) -> None:
+    """Plane on a mocap body (its pose is data, set between two steps), the contact pair."""
+    body = spec.worldbody.add_body(name=SURFACE_BODY, mocap=True)
+    body.add_geom(name=SURFACE_GEOM, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.0, 1.0, 0.01],
+                  contype=0, conaffinity=0, rgba=[0.5, 0.6, 0.7, 1.0])
+    mu = opts.surface_friction
+    spec.add_pair(name='hfc_contact', geomname1=SURFACE_GEOM, geomname2=TOOL_GEOM,
+                  condim=3 if mu > 0.0 else 1, friction=[mu, mu, 0.0, 0.0, 0.0],
+                  solimp=list(SOLIMP), margin=0.0, gap=0.0)
+    opt = spec.option
+    opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    opt.impratio = 1.0
+    opt.noslip_iterations = NOSLIP_ITERATIONS if mu > 0.0 else 0
+
+
+def build_scene(urdf: str | Path, model: RobotModel, opts: MujocoOptions, timestep: float,
+                theta: np.ndarray | None = None) -> Scene:
+    """Compile the scene (see the module docstring); ParameterValidationError if it cannot."""
+    try:
+        spec = mujoco.MjSpec.from_string(_urdf_text(urdf))
+    except ValueError as exc:
+        raise ParameterValidationError(f'MuJoCo cannot load the URDF: {exc}') from None
+    spec.compiler.fusestatic = False
+    spec.compiler.boundinertia = 1e-12  # the paper's arm has point masses
+    spec.compiler.boundmass = 1e-12  # a tool of zero mass
+    spec.option.gravity = model.model.gravity.linear.copy()  # URDF root = MuJoCo world
+    spec.option.timestep = timestep
+    _delete_locked_joints(spec, tuple(model.joint_names))
+    _scale_masses(spec, model, theta)
+    _configure_joints(spec, opts)
+    _add_tool(spec, model.end_effector_link, opts)
+    _add_surface(spec, opts)
+    m = spec.compile()
+    return _index(m, model, opts)
+
+
+def _index(m: mujoco.MjModel, model: RobotModel, opts: MujocoOptions) -> Scene:
+    ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.joint_names]
+    R_W_root = model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[1]
+    o_W = model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[0]
+    tool = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, TOOL_BODY)
+    sensor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, 'hfc_ft_force')
+    torque = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, 'hfc_ft_torque')
+    return Scene(model=m, qpos=m.jnt_qposadr[ids].copy(), dof=m.jnt_dofadr[ids].copy(),
+                 ee_body=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
+                                           model.end_effector_link),
+                 tool_body=tool,
+                 mocap=int(m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
+                                                            SURFACE_BODY)]),
+                 force_adr=int(m.sensor_adr[sensor]), torque_adr=int(m.sensor_adr[torque]),
+                 R_W_root=np.array(R_W_root, dtype=float), o_W=np.array(o_W, dtype=float),
+                 tran=float(m.body_invweight0[tool, 0]), damping=opts.surface_damping)
+
+
+def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) -> None:
+    """
+    Place the plane (data) and set its stiffness (model); None: no contact at all.
+
+    The damping is the scene's ``surface_damping``. Takes effect at the next step.
+    """
+    m = scene.model
+    disable = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    if surface is None:
+        m.opt.disableflags |= disable
+        return
+    m.opt.disableflags &= ~disable
+    n_root = scene.R_W_root.T @ surface.n_W
+    d.mocap_pos[scene.mocap] = scene.R_W_root.T @ (surface.x0_W - scene.o_W)
+    quat = np.zeros(4)
+    mujoco.mju_quatZ2Vec(quat, -n_root)  # the plane's +z points out of the surface
+    d.mocap_quat[scene.mocap] = quat
+    scale = -(1.0 - D_IMPEDANCE) * scene.tran
+    m.pair_solref[0] = [scale * surface.k, scale * scene.damping]
+    m.pair_solreffriction[0] = m.pair_solref[0]

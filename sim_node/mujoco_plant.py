@@ -63,7 +63,7 @@ class MujocoPlant:
 
     @property
     def surface(self) -> ElasticSurface | None:
-        """The surface (plane pose, stiffness); None: contact disabled."""
+        """Return the surface (plane pose, stiffness); None: contact disabled."""
         return self._surface
 
     @surface.setter

@@ -4,8 +4,8 @@ The runtime's latest inputs: checked samples, their staleness, the filtered forc
 :class:`LatestInputs` keeps the newest joint state and wrench that passed the checks of
 inputs.py, computes the kinematics once per joint state, rotates each new wrench into the base
 frame (less the tool's weight, ``tool_mass``: tool_gravity.py) and low-pass filters it over the
-wrench stamps, and says when the inputs are too old to act on. Rejected samples are counted in the caller's counters and raise the typed error. Times are
-seconds on the caller's clock.
+wrench stamps, and says when the inputs are too old to act on. Rejected samples are counted in
+the caller's counters and raise the typed error. Times are seconds on the caller's clock.
 """
 from __future__ import annotations
 

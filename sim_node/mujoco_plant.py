@@ -63,7 +63,7 @@ class MujocoPlant:
 
     @property
     def surface(self) -> ElasticSurface | None:
-        """Return the surface (plane pose, stiffness); None: contact disabled."""
+        """Return the current plane: pose and stiffness; None when contact is disabled."""
         return self._surface
 
     @surface.setter

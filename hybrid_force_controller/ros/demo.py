@@ -10,6 +10,12 @@ By default both nodes run in real time against the wall clock at 1 kHz, as on a 
 ``--lockstep`` makes the sim own the time (it publishes ``/clock``, the controller uses sim
 time and the recorder sim time), so the run is the same on a loaded machine. The report's
 ``metrics.json`` records ``"mode": "real_time"`` or ``"lockstep"``.
+
+``--physics mujoco`` runs the sim on MuJoCo (config/mujoco.yaml: a 0.1 kg sphere tool whose
+weight the wrist sensor reads and the controller subtracts; ``--friction MU`` on the surface);
+``--arm panda`` runs the bundled Panda pressing 5 N on a table along a 10 cm line, its sim
+masses +/-30 % off (config/panda_params.yaml + config/panda_table.yaml; friction 0.3 by
+default on MuJoCo). metrics.json also records ``arm``, ``physics`` and ``friction``.
 """
 from __future__ import annotations
 
@@ -34,15 +40,35 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--lockstep', action='store_true',
                     help='deterministic: the sim owns the time (/clock), one step per command')
     ap.add_argument('--timeout', type=float, default=900.0, help='wall-time limit, s')
+    ap.add_argument('--arm', choices=('paper', 'panda'), default='paper',
+                    help="the paper's 2-link arm (default) or the Panda on a table")
+    ap.add_argument('--physics', choices=('paper', 'mujoco'), default='paper',
+                    help="the sim's physics (mujoco: MuJoCo, sphere tool, wrist sensor)")
+    ap.add_argument('--friction', type=float, default=None,
+                    help='mujoco: friction mu of the surface (default 0; the Panda 0.3)')
     return ap
 
 
-def _start_nodes(params: Path, lockstep: bool, env: dict[str, str],
+def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float]:
+    """``--ros-args`` of both nodes for --arm/--physics/--friction, and the friction mu."""
+    files = ['params.yaml'] if args.arm == 'paper' else ['panda_params.yaml', 'panda_table.yaml']
+    mu = 0.0
+    if args.physics == 'mujoco':
+        files.append('mujoco.yaml')
+        mu = args.friction if args.friction is not None else 0.3 if args.arm == 'panda' else 0.0
+    out = [a for name in files for a in ('--params-file', str(find_config(name)))]
+    if args.arm == 'panda':
+        from ..core.arm7 import panda_urdf_path
+        out += ['-p', f'robot_description:={panda_urdf_path()}']
+    return out, mu
+
+
+def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, str],
                  log_dir: Path) -> list[subprocess.Popen]:
     """Start sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
-    common = ['--ros-args', '--params-file', str(params)]
+    common = ['--ros-args', *ros_args]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
-           '-p', f'lockstep:={str(lockstep).lower()}']
+           '-p', f'lockstep:={str(lockstep).lower()}', '-p', f'surface_friction:={mu!r}']
     ctrl = [sys.executable, '-m', f'{PKG}.ros.controller_node', *common,
             '-p', f'use_sim_time:={str(lockstep).lower()}']
     procs = []
@@ -89,10 +115,11 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
         rclpy.shutdown()
 
 
-def _add_mode(metrics_path: Path, mode: str) -> None:
-    """Record how the run was timed in the report's metrics.json."""
+def _add_mode(metrics_path: Path, mode: str, **setup: object) -> None:
+    """Record how the run was timed (and the arm, physics, friction) in metrics.json."""
     metrics = json.loads(metrics_path.read_text())
     metrics['mode'] = mode
+    metrics.update(setup)
     metrics_path.write_text(json.dumps(metrics, indent=2) + '\n')
 
 
@@ -102,15 +129,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.duration < 6.0:
         print('error: --duration must be >= 6 s (metrics start at 5 s)', file=sys.stderr)
         return 2
+    if args.friction is not None and (args.physics != 'mujoco' or args.friction < 0.0):
+        print('error: --friction needs --physics mujoco and mu >= 0', file=sys.stderr)
+        return 2
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', '37')
     bag, report_dir = args.out / 'bag', args.out / 'report'
     shutil.rmtree(bag, ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
     mode = 'lockstep' if args.lockstep else 'real_time'
-    print(f'demo: {args.duration:.0f} s, {mode.replace("_", " ")}, '
-          f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
-    procs = _start_nodes(find_config(), args.lockstep, dict(os.environ), args.out)
+    print(f'demo: {args.arm} arm on {args.physics} physics, {args.duration:.0f} s, '
+          f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
+    ros_args, mu = _scenario_args(args)
+    procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out)
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout)
     except (RuntimeError, TimeoutError) as exc:
@@ -132,7 +163,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print('report:')
     code = report_main([str(bag), '--out', str(report_dir)])
     if code == 0:
-        _add_mode(report_dir / 'metrics.json', mode)
+        _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
+                  friction=mu)
         print(f'bag:     {bag}\nfigures: {report_dir}/fig3_position.png, fig4_force.png, '
               f'fig5_parameters.png\nmetrics: {report_dir}/metrics.json')
     return code

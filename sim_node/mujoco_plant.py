@@ -45,7 +45,8 @@ class MujocoPlant:
         if substeps < 1:
             raise SimulatorError('substeps must be >= 1')
         self.n, self.substeps = model.n, int(substeps)
-        self.scene = build_scene(urdf, model, opts, dt / self.substeps, theta)
+        k0 = 1.0 if surface is None else surface.k  # sizes the plate (mujoco_scene.py)
+        self.scene = build_scene(urdf, model, opts, dt / self.substeps, k0, theta)
         self.m, self.d = self.scene.model, mujoco.MjData(self.scene.model)
         self.surface = surface
         q0 = np.asarray(q0, dtype=float)
@@ -127,9 +128,11 @@ class MujocoPlant:
 
     def _contact_force_root(self) -> np.ndarray:
         """Force the tool exerts on the surface, MuJoCo world (the URDF root)."""
-        d, f = self.d, np.zeros(3)
+        d, f, tool = self.d, np.zeros(3), self.scene.tool_geom
         for i in range(d.ncon):
             mujoco.mj_contactForce(self.m, d, i, self._force6)
-            frame = d.contact[i].frame.reshape(3, 3)
-            f += frame.T @ self._force6[:3]  # on geom2 (the tool)... sign checked below
-        return -f
+            contact = d.contact[i]
+            # the force geom1 exerts on geom2, in the contact frame (normal from 1 to 2)
+            on_2 = contact.frame.reshape(3, 3).T @ self._force6[:3]
+            f += on_2 if contact.geom1 == tool else -on_2
+        return f

@@ -9,22 +9,37 @@ model (the other joints deleted: welded at 0, as the reduced pinocchio model loc
 * a tool body ``hfc_tool`` on ``end_effector_link`` (same frame) carrying a sphere of
   ``tool_radius`` and ``tool_mass`` centred on the link's origin, and a site there with a
   ``force`` + ``torque`` sensor pair: the wrist sensor, in the end-effector frame;
-* a plane ``hfc_surface`` through the surface point with its normal (``n_W`` points into the
-  surface, the plane's +z out of it), in contact with the sphere only, through an explicit
-  pair (elliptic cone, ``impratio`` 1; friction as damped as stays stable, FRICTION_DAMPING).
+* the surface: a table top ``hfc_surface`` (a 2 m x 2 m box) whose top face passes through the
+  surface point, its outward normal ``-n_W`` (``n_W`` points into the surface), mounted on a
+  slide joint along that normal with a spring and damper: the surface's stiffness ``k`` (N/m)
+  and ``surface_damping`` (N s/m); gravity-compensated, light (:func:`plate_mass`);
+* one explicit contact pair, sphere on table top (elliptic cone; friction ``mu`` when
+  ``surface_friction`` > 0, else frictionless, condim 1).
 
-Contact stiffness: MuJoCo's negative ``solref`` is not N/m. With the flat impedance
-``solimp = [d, d, ...]`` the static stiffness is ``k = -solref[0] / ((1 - d) tran)``, ``tran``
-the tool body's ``body_invweight0`` (known once compiled), so :func:`set_surface` sets
-``solref = -(1 - d) tran [k, c]`` on the compiled model. Link masses ``theta`` (the
-``link_masses`` set) scale each pinocchio body's URDF links, keeping their geometry.
+Contact stiffness: MuJoCo's negative ``solref`` is not N/m. With the flat impedance ``solimp =
+[d, d, ...]`` the static stiffness of a contact is ``k_c = -solref[0] / ((1 - d) tran)``,
+``tran`` the sum of the two bodies' ``body_invweight0`` (known once compiled). The contact is
+made ``CONTACT_STIFFNESS_RATIO`` times stiffer than ``k`` and the spring makes up the rest in
+series, ``1 / k_spring = 1 / k - 1 / k_c``, so the static stiffness is exactly ``k``.
+
+Why a sprung table top rather than all compliance in the contact: with all of it in a soft
+contact (``d`` = 0.01) friction is soft too and MuJoCo's elliptic cone couples the normal to the
+tangential drive (the normal force grew while the sliding tool left the surface; the closed loop
+chattered), and a hard contact on a light plate rattled. ``d`` = 0.5 with ``impratio`` 100 (the
+friction rows 100 times less regularised than the normal) holds a 1 N side push below
+``mu f_n`` to a creep of about 0.3 mm/s and slides above it. No-slip iterations changed nothing
+measurable (MuJoCo 4.0.0), so none are used.
+
+Link masses ``theta`` (the ``link_masses`` set) scale each pinocchio body's URDF links, keeping
+their geometry.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from pathlib import Path
 
-from hybrid_force_controller.core.environment import ElasticSurface
+from hybrid_force_controller.core.environment import ElasticSurface, SurfaceError
 from hybrid_force_controller.core.params import ParameterValidationError
 from hybrid_force_controller.core.robot_model import RobotModel
 import mujoco
@@ -32,18 +47,21 @@ import numpy as np
 
 from .mujoco_params import MujocoOptions
 
-__all__ = ['D_IMPEDANCE', 'Scene', 'build_scene', 'set_surface']
+__all__ = ['Scene', 'build_scene', 'plate_mass', 'set_surface']
 
 TOOL_BODY, TOOL_GEOM, SURFACE_GEOM, FT_SITE = 'hfc_tool', 'hfc_tool_sphere', 'hfc_surface', \
     'hfc_ft_site'
-D_IMPEDANCE = 0.01  # flat solimp: the impedance d at every depth
+SURFACE_BODY, SURFACE_JOINT = 'hfc_surface_plate', 'hfc_surface_spring'
+D_IMPEDANCE = 0.5  # flat solimp: the contact's impedance d at every depth
 SOLIMP = (D_IMPEDANCE, D_IMPEDANCE, 0.001, 0.5, 2.0)
-SURFACE_BODY = 'hfc_surface_body'
-# Below mu f_n MuJoCo's soft friction is a damper, not a lock: the tool creeps at F_t / c_f.
-# c_f is set to this fraction of the explicit-damping stability bound 1 / (tran dt), the
-# stiffest that stays stable (0.5: about 1.3e3 N s/m for both bundled arms at 1 ms; no-slip
-# iterations changed nothing measurable with MuJoCo 4.0.0, so none are used).
-FRICTION_DAMPING = 0.5
+CONTACT_STIFFNESS_RATIO = 5.0  # contact k_c / surface k; the plate's spring makes up the rest
+CONTACT_DAMPING_RATIO = 1.0  # contact damping, fraction of critical (tool against contact)
+IMPRATIO = 100.0  # friction regularised this much less than the normal: it holds
+PLATE_OMEGA_DT = 0.25  # the plate's sqrt(k / m) dt: its explicit spring stays stable
+PLATE_K_RANGE = 4.0  # run-time stiffness changes up to this factor keep it stable
+PLATE_OMEGA_DT_MAX = PLATE_OMEGA_DT * math.sqrt(PLATE_K_RANGE) * (1.0 + 1e-9)
+PLATE_MASS_MIN = 0.01  # kg
+PLATE_HALF_SIZE = (1.0, 1.0, 0.05)  # m: a 2 m x 2 m table top, 10 cm thick
 
 
 @dataclass
@@ -60,12 +78,13 @@ class Scene:
     dof: np.ndarray
     ee_body: int
     tool_body: int
-    mocap: int
+    tool_geom: int
+    plate: int
+    plate_dof: int
     force_adr: int
     torque_adr: int
     R_W_root: np.ndarray
     o_W: np.ndarray
-    tran: float
     damping: float
 
 
@@ -157,11 +176,16 @@ def _add_tool(spec: mujoco.MjSpec, ee_link: str, opts: MujocoOptions) -> None:
         spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE)
 
 
-def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions) -> None:
-    """Plane on a mocap body (its pose is data, set between two steps), the contact pair."""
-    body = spec.worldbody.add_body(name=SURFACE_BODY, mocap=True)
-    body.add_geom(name=SURFACE_GEOM, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.0, 1.0, 0.01],
-                  contype=0, conaffinity=0, rgba=[0.5, 0.6, 0.7, 1.0])
+def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions, mass: float) -> None:
+    """Add the plate on its spring (a slide joint along its +z), the contact pair, options."""
+    plate = spec.worldbody.add_body(name=SURFACE_BODY, gravcomp=1.0)
+    plate.explicitinertial = True
+    plate.mass, plate.inertia = mass, [mass * 1e-2] * 3  # the contact's R uses it: compile
+    plate.add_joint(name=SURFACE_JOINT, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, 0.0, 1.0],
+                    limited=mujoco.mjtLimited.mjLIMITED_FALSE)
+    plate.add_geom(name=SURFACE_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=PLATE_HALF_SIZE,
+                   pos=[0.0, 0.0, -PLATE_HALF_SIZE[2]], contype=0, conaffinity=0,
+                   rgba=[0.5, 0.6, 0.7, 1.0])  # its top face through the body's origin
     mu = opts.surface_friction
     spec.add_pair(name='hfc_contact', geomname1=SURFACE_GEOM, geomname2=TOOL_GEOM,
                   condim=3 if mu > 0.0 else 1, friction=[mu, mu, 0.0, 0.0, 0.0],
@@ -169,11 +193,11 @@ def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions) -> None:
     opt = spec.option
     opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    opt.impratio = 1.0
+    opt.impratio = IMPRATIO
 
 
 def build_scene(urdf: str | Path, model: RobotModel, opts: MujocoOptions, timestep: float,
-                theta: np.ndarray | None = None) -> Scene:
+                k: float, theta: np.ndarray | None = None) -> Scene:
     """Compile the scene (see the module docstring); ParameterValidationError if it cannot."""
     try:
         spec = mujoco.MjSpec.from_string(_urdf_text(urdf))
@@ -188,7 +212,7 @@ def build_scene(urdf: str | Path, model: RobotModel, opts: MujocoOptions, timest
     _scale_masses(spec, model, theta)
     _configure_joints(spec, opts)
     _add_tool(spec, model.end_effector_link, opts)
-    _add_surface(spec, opts)
+    _add_surface(spec, opts, plate_mass(k, timestep))
     m = spec.compile()
     return _index(m, model, opts)
 
@@ -204,18 +228,26 @@ def _index(m: mujoco.MjModel, model: RobotModel, opts: MujocoOptions) -> Scene:
                  ee_body=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
                                            model.end_effector_link),
                  tool_body=tool,
-                 mocap=int(m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY,
-                                                            SURFACE_BODY)]),
+                 tool_geom=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, TOOL_GEOM),
+                 plate=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, SURFACE_BODY),
+                 plate_dof=int(m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT,
+                                                              SURFACE_JOINT)]),
                  force_adr=int(m.sensor_adr[sensor]), torque_adr=int(m.sensor_adr[torque]),
                  R_W_root=np.array(R_W_root, dtype=float), o_W=np.array(o_W, dtype=float),
-                 tran=float(m.body_invweight0[tool, 0]), damping=opts.surface_damping)
+                 damping=opts.surface_damping)
+
+
+def plate_mass(k: float, timestep: float) -> float:
+    """Return the plate's mass, kg: light, yet its spring k stays stable at ``timestep``."""
+    return max(PLATE_MASS_MIN, k * (timestep / PLATE_OMEGA_DT) ** 2)
 
 
 def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) -> None:
     """
-    Place the plane (data) and set its stiffness (model); None: no contact at all.
+    Place the plate and set its spring (model); None: no contact at all.
 
-    The damping is the scene's ``surface_damping``. Takes effect at the next step.
+    The damping is the scene's ``surface_damping``. Takes effect at the next step; the plate's
+    deflection (its joint state) is kept.
     """
     m = scene.model
     disable = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
@@ -223,12 +255,19 @@ def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) 
         m.opt.disableflags |= disable
         return
     m.opt.disableflags &= ~disable
-    n_root = scene.R_W_root.T @ surface.n_W
-    d.mocap_pos[scene.mocap] = scene.R_W_root.T @ (surface.x0_W - scene.o_W)
+    b, j = scene.plate, m.dof_jntid[scene.plate_dof]
+    m.body_pos[b] = scene.R_W_root.T @ (surface.x0_W - scene.o_W)
     quat = np.zeros(4)
-    mujoco.mju_quatZ2Vec(quat, -n_root)  # the plane's +z points out of the surface
-    d.mocap_quat[scene.mocap] = quat
-    scale = -(1.0 - D_IMPEDANCE) * scene.tran
-    m.pair_solref[0] = [scale * surface.k, scale * scene.damping]
-    c_f = FRICTION_DAMPING / (scene.tran * m.opt.timestep)  # N s/m
-    m.pair_solreffriction[0] = [scale * surface.k, scale * c_f]
+    mujoco.mju_quatZ2Vec(quat, -(scene.R_W_root.T @ surface.n_W))  # +z out of the surface
+    m.body_quat[b] = quat
+    omega_dt = math.sqrt(surface.k / m.body_mass[b]) * m.opt.timestep
+    if omega_dt > PLATE_OMEGA_DT_MAX:
+        raise SurfaceError(f'physics:=mujoco: stiffness {surface.k:g} N/m is too high for the '
+                           f'plate sized at start-up (at most {PLATE_K_RANGE:g} times the '
+                           'start-up stiffness; restart the sim with it)')
+    k_c = CONTACT_STIFFNESS_RATIO * surface.k
+    m.jnt_stiffness[j] = 1.0 / (1.0 / surface.k - 1.0 / k_c)  # in series: k in all
+    tran = m.body_invweight0[scene.tool_body, 0] + m.body_invweight0[b, 0]
+    c_c = 2.0 * CONTACT_DAMPING_RATIO * math.sqrt(k_c / tran)
+    m.pair_solref[0] = [-(1.0 - D_IMPEDANCE) * tran * k_c, -(1.0 - D_IMPEDANCE) * tran * c_c]
+    m.dof_damping[scene.plate_dof] = scene.damping

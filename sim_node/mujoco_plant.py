@@ -113,18 +113,22 @@ class MujocoPlant:
             mujoco.mj_inverse(m, d)
         else:
             mujoco.mj_forward(m, d)
-        R = sc.R_W_root
-        p_W = R @ d.xpos[sc.ee_body] + sc.o_W
-        R_W_ee = R @ d.xmat[sc.ee_body].reshape(3, 3)
-        # MuJoCo's force sensor: the force the hand exerts on the tool, site frame
-        F_S = -d.sensordata[sc.force_adr:sc.force_adr + 3]
-        self.torque_S = -d.sensordata[sc.torque_adr:sc.torque_adr + 3].copy()
-        f_W = -(R_W_ee @ F_S)
+        sensor = d.sensordata
+        a_f, a_t = sc.force_adr, sc.torque_adr
+        self.torque_S = -sensor[a_t:a_t + 3]
+        p_W, R_W_ee = d.xpos[sc.ee_body].copy(), d.xmat[sc.ee_body].reshape(3, 3).copy()
+        # MuJoCo's force sensor reads the force the hand exerts on the tool (site frame): minus
+        # the published F_S, so f_W = -R F_S is R times the reading
+        f_W = R_W_ee @ sensor[a_f:a_f + 3]
+        f_true = self._contact_force_root() if d.ncon else np.zeros(3)
+        if sc.rotated:  # base_link is not the URDF root
+            R = sc.R_W_root
+            p_W, R_W_ee, f_W, f_true = R @ p_W + sc.o_W, R @ R_W_ee, R @ f_W, R @ f_true
         if self.noise_sigma:
             f_W = f_W + self.rng.normal(0.0, self.noise_sigma, 3)
-        f_true = R @ self._contact_force_root()
-        return Measurement(self.t, self.q, self.qdot, self.tau, p_W, R_W_ee, f_W, f_true,
-                           in_contact(float(np.linalg.norm(f_true))))
+        f_n = math.sqrt(f_true @ f_true)
+        return Measurement(self.t, d.qpos[sc.qpos], d.qvel[sc.dof], self.tau, p_W, R_W_ee, f_W,
+                           f_true, in_contact(f_n))
 
     def _contact_force_root(self) -> np.ndarray:
         """Force the tool exerts on the surface, MuJoCo world (the URDF root)."""

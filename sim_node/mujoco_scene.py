@@ -84,6 +84,7 @@ class Scene:
     force_adr: int
     torque_adr: int
     R_W_root: np.ndarray
+    rotated: bool
     o_W: np.ndarray
     damping: float
 
@@ -234,6 +235,7 @@ def _index(m: mujoco.MjModel, model: RobotModel, opts: MujocoOptions) -> Scene:
                                                               SURFACE_JOINT)]),
                  force_adr=int(m.sensor_adr[sensor]), torque_adr=int(m.sensor_adr[torque]),
                  R_W_root=np.array(R_W_root, dtype=float), o_W=np.array(o_W, dtype=float),
+                 rotated=not (np.array_equal(R_W_root, np.eye(3)) and not np.any(o_W)),
                  damping=opts.surface_damping)
 
 

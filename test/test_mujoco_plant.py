@@ -77,6 +77,7 @@ def test_mass_matrix_and_bias_forces_match_pinocchio(name):
         b_pin = pin.rnea(model.model, model.data, q, v, np.zeros(model.n))
         worst_M = max(worst_M, np.abs(M[np.ix_(sc.dof, sc.dof)] - M_pin).max())
         worst_b = max(worst_b, np.abs(d.qfrc_bias[sc.dof] - b_pin).max())
+    print(f'{name}: max |M - M_pin| = {worst_M:.2e}, max |b - b_pin| = {worst_b:.2e}')
     assert worst_M <= 1e-9 and worst_b <= 1e-9, (worst_M, worst_b)
 
 
@@ -87,6 +88,7 @@ def test_static_press_gives_the_stiffness_parameter(name, k):
         meas = _press(model, plant, f_n * n_W)
         depth = float(n_W @ (meas.p_W - plant.surface.x0_W)) + R_TOOL
         f_true_n = float(n_W @ meas.f_true_W)
+        print(f'{name}: {f_n:g} N: k = {f_true_n / depth:.2f} N/m (parameter {k:g})')
         assert f_true_n == pytest.approx(f_n, rel=1e-3)
         assert f_true_n / depth == pytest.approx(k, rel=0.02)
 

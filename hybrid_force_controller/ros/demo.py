@@ -11,11 +11,12 @@ By default both nodes run in real time against the wall clock at 1 kHz, as on a 
 time and the recorder sim time), so the run is the same on a loaded machine. The report's
 ``metrics.json`` records ``"mode": "real_time"`` or ``"lockstep"``.
 
-``--physics mujoco`` runs the sim on MuJoCo (config/mujoco.yaml: a 0.1 kg sphere tool whose
-weight the wrist sensor reads and the controller subtracts; ``--friction MU`` on the surface);
-``--arm panda`` runs the bundled Panda pressing 5 N on a table along a 10 cm line, its sim
-masses +/-30 % off (config/panda_params.yaml + config/panda_table.yaml; friction 0.3 by
-default on MuJoCo). metrics.json also records ``arm``, ``physics`` and ``friction``.
+``--physics mujoco`` runs the sim on MuJoCo (config/mujoco.yaml: a sphere tool and a wrist
+force/torque sensor; ``--friction MU`` on the surface, ``--tool-mass KG`` the tool's mass, which
+the sensor feels and the controller's ``tool_mass`` subtracts); ``--arm panda`` runs the bundled
+Panda pressing 5 N on a table along a 10 cm line, its sim masses +/-30 % off
+(config/panda_params.yaml + config/panda_table.yaml; on MuJoCo friction 0.3 and a 0.1 kg tool
+by default). metrics.json also records ``arm``, ``physics``, ``friction`` and ``tool_mass``.
 """
 from __future__ import annotations
 
@@ -32,6 +33,10 @@ from typing import Sequence
 
 from .launch import find_config, PKG
 
+#: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
+#: Panda's wrist sensor, which the controller compensates; the paper's arm keeps a massless tip
+TOOL_MASS = {'paper': 0.0, 'panda': 0.1}
+
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
@@ -46,17 +51,22 @@ def _parser() -> argparse.ArgumentParser:
                     help="the sim's physics (mujoco: MuJoCo, sphere tool, wrist sensor)")
     ap.add_argument('--friction', type=float, default=None,
                     help='mujoco: friction mu of the surface (default 0; the Panda 0.3)')
+    ap.add_argument('--tool-mass', type=float, default=None,
+                    help='mujoco: mass of the tool, kg, in the sim and the controller\'s '
+                    'tool_mass (default 0; the Panda 0.1)')
     return ap
 
 
 def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float]:
     """``--ros-args`` of both nodes for --arm/--physics/--friction, and the friction mu."""
     files = ['params.yaml'] if args.arm == 'paper' else ['panda_params.yaml', 'panda_table.yaml']
-    mu = 0.0
+    mu, tool = 0.0, []
     if args.physics == 'mujoco':
         files.append('mujoco.yaml')
         mu = args.friction if args.friction is not None else 0.3 if args.arm == 'panda' else 0.0
-    out = [a for name in files for a in ('--params-file', str(find_config(name)))]
+        mass = TOOL_MASS[args.arm] if args.tool_mass is None else args.tool_mass
+        tool = ['-p', f'tool_mass:={float(mass)!r}']  # the same name in both nodes
+    out = [a for name in files for a in ('--params-file', str(find_config(name)))] + tool
     if args.arm == 'panda':
         from ..core.arm7 import panda_urdf_path
         out += ['-p', f'robot_description:={panda_urdf_path()}']
@@ -129,9 +139,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.duration < 6.0:
         print('error: --duration must be >= 6 s (metrics start at 5 s)', file=sys.stderr)
         return 2
-    if args.friction is not None and (args.physics != 'mujoco' or args.friction < 0.0):
-        print('error: --friction needs --physics mujoco and mu >= 0', file=sys.stderr)
-        return 2
+    for name, value in (('friction', args.friction), ('tool-mass', args.tool_mass)):
+        if value is not None and (args.physics != 'mujoco' or value < 0.0):
+            print(f'error: --{name} needs --physics mujoco and a value >= 0', file=sys.stderr)
+            return 2
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', '37')
     bag, report_dir = args.out / 'bag', args.out / 'report'
@@ -141,6 +152,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f'demo: {args.arm} arm on {args.physics} physics, {args.duration:.0f} s, '
           f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
     ros_args, mu = _scenario_args(args)
+    tool_mass = float(ros_args[-1].split(':=')[1]) if args.physics == 'mujoco' else 0.0
     procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out)
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout)
@@ -164,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = report_main([str(bag), '--out', str(report_dir)])
     if code == 0:
         _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
-                  friction=mu)
+                  friction=mu, tool_mass=tool_mass)
         print(f'bag:     {bag}\nfigures: {report_dir}/fig3_position.png, fig4_force.png, '
               f'fig5_parameters.png\nmetrics: {report_dir}/metrics.json')
     return code

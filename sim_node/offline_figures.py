@@ -2,11 +2,12 @@
 ``python -m sim_node.offline_figures``: the demo's scenarios offline, on each physics, as JSON.
 
 Reads the same config files as ``demo`` (config/params.yaml or panda_params.yaml +
-panda_table.yaml, then mujoco.yaml and demo's tool mass for ``physics:=mujoco``), builds the controller's runtime and
-the sim's plant from them as the nodes do (sim_node/plants.py), and runs the offline engine
-(core/engine.py) with the timing measured over DDS (``TimingModel.ros_measured``, seeded), so
-the figures do not depend on the machine's load: RMS tangential position and true-force errors
-over t >= 5 s and the contact lost after the first touch.
+panda_table.yaml, then mujoco.yaml and demo's tool mass for ``physics:=mujoco``), builds the
+controller's runtime and the sim's plant from them as the nodes do (sim_node/plants.py), and
+runs the offline engine (core/engine.py) with the timing measured over DDS
+(``TimingModel.ros_measured``, seeded), so the figures do not depend on the machine's load: RMS tangential position and true-force errors
+over t >= 5 s, the contact lost after the first touch, and the plant's cost per 1 ms step
+(``plant_step_us``: step + measure, wall time of this process).
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import argparse
 import json
 from pathlib import Path
 import sys
+import time
 from typing import Any, Sequence
 
 from hybrid_force_controller.core.arm7 import panda_urdf_path
@@ -33,6 +35,7 @@ from .sim_node import SIM_SCHEMA
 __all__ = ['main', 'run']
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
+STEP_COST_STEPS = 2000
 
 
 def _values(files: Sequence[str], node: str) -> dict[str, Any]:
@@ -72,7 +75,12 @@ def run(arm: str, physics: str, friction: float, duration: float = 20.0,
     e_x = (log.x_W - log.x_d_W)[after] @ P_t
     touch = next((i for i, f in enumerate(f_n) if in_contact(f)), len(f_n))
     lost = [not in_contact(f) for f in f_n[touch:]]
-    return {'rms_position_error_m': float(np.sqrt(np.mean(np.sum(e_x ** 2, axis=1)))),
+    tau, t0 = log.tau[-1], time.perf_counter()
+    for _ in range(STEP_COST_STEPS):  # the plant's cost: step + measure, the last effort held
+        plant.step(tau, 1e-3)
+    step_us = (time.perf_counter() - t0) / STEP_COST_STEPS * 1e6
+    return {'plant_step_us': step_us,
+            'rms_position_error_m': float(np.sqrt(np.mean(np.sum(e_x ** 2, axis=1)))),
             'rms_force_error_n': float(np.sqrt(np.mean((f_n[after] - f_d) ** 2))),
             'max_force_error_n': float(np.max(np.abs(f_n[after] - f_d))),
             'contact_lost_after_touch_s': float(np.sum(lost) * 1e-3),

@@ -52,15 +52,15 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--friction', type=float, default=None,
                     help='mujoco: friction mu of the surface (default 0; the Panda 0.3)')
     ap.add_argument('--tool-mass', type=float, default=None,
-                    help='mujoco: mass of the tool, kg, in the sim and the controller\'s '
+                    help="mujoco: mass of the tool, kg, in the sim and the controller's "
                     'tool_mass (default 0; the Panda 0.1)')
     return ap
 
 
-def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float]:
-    """``--ros-args`` of both nodes for --arm/--physics/--friction, and the friction mu."""
+def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:
+    """``--ros-args`` of both nodes for --arm/--physics/--friction/--tool-mass, mu, the mass."""
     files = ['params.yaml'] if args.arm == 'paper' else ['panda_params.yaml', 'panda_table.yaml']
-    mu, tool = 0.0, []
+    mu, mass, tool = 0.0, 0.0, []
     if args.physics == 'mujoco':
         files.append('mujoco.yaml')
         mu = args.friction if args.friction is not None else 0.3 if args.arm == 'panda' else 0.0
@@ -70,7 +70,7 @@ def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float]:
     if args.arm == 'panda':
         from ..core.arm7 import panda_urdf_path
         out += ['-p', f'robot_description:={panda_urdf_path()}']
-    return out, mu
+    return out, mu, mass
 
 
 def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, str],
@@ -151,8 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     mode = 'lockstep' if args.lockstep else 'real_time'
     print(f'demo: {args.arm} arm on {args.physics} physics, {args.duration:.0f} s, '
           f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
-    ros_args, mu = _scenario_args(args)
-    tool_mass = float(ros_args[-1].split(':=')[1]) if args.physics == 'mujoco' else 0.0
+    ros_args, mu, tool_mass = _scenario_args(args)
     procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out)
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout)

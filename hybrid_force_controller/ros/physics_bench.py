@@ -29,8 +29,8 @@ __all__ = ['main']
 
 def _loop(physics: str, arm: str, friction: float | None, domain: int,
           log_dir: Path) -> dict[str, subprocess.Popen]:
-    ns = argparse.Namespace(arm=arm, physics=physics, friction=friction)
-    ros_args, mu = _scenario_args(ns)
+    ns = argparse.Namespace(arm=arm, physics=physics, friction=friction, tool_mass=None)
+    ros_args, mu, _ = _scenario_args(ns)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     procs = {}

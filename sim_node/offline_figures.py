@@ -48,14 +48,15 @@ def _values(files: Sequence[str], node: str) -> dict[str, Any]:
 
 
 def run(arm: str, physics: str, friction: float, duration: float = 20.0,
-        seed: int = 1) -> dict[str, float]:
+        seed: int = 1, tool_mass: float | None = None) -> dict[str, float]:
     """Run one scenario offline; return its figures."""
     files = ['params.yaml'] if arm == 'paper' else ['panda_params.yaml', 'panda_table.yaml']
     files += ['mujoco.yaml'] if physics == 'mujoco' else []
     extra = {} if arm == 'paper' else {'robot_description': str(panda_urdf_path())}
     ctrl, sim = _values(files, 'hybrid_force_controller'), _values(files, 'sim')
     v = {s.name: s.default for s in (*SIM_SCHEMA, *MODEL_SCHEMA)}
-    tool = {'tool_mass': TOOL_MASS[arm]} if physics == 'mujoco' else {}  # as demo passes it
+    mass = TOOL_MASS[arm] if tool_mass is None else tool_mass
+    tool = {'tool_mass': mass} if physics == 'mujoco' else {}  # as demo passes it
     ctrl.update(tool)
     v.update({**sim, **extra, **tool, 'physics': physics, 'surface_friction': friction})
     model = RobotModel.from_parameters(v, v['joints'])
@@ -101,10 +102,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--friction', type=float, default=None)
     ap.add_argument('--duration', type=float, default=20.0)
     ap.add_argument('--seed', type=int, default=1)
+    ap.add_argument('--tool-mass', type=float, default=None, help='mujoco: as demo')
     args = ap.parse_args(argv)
     mu = args.friction if args.friction is not None else 0.3 if args.arm == 'panda' else 0.0
-    out = {p: run(args.arm, p, mu if p == 'mujoco' else 0.0, args.duration, args.seed)
-           for p in args.physics}
+    out = {p: run(args.arm, p, mu if p == 'mujoco' else 0.0, args.duration, args.seed,
+                  args.tool_mass) for p in args.physics}
     print(json.dumps({'arm': args.arm, 'friction': mu, **out}, indent=2))
     return 0
 

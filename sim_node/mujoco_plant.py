@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from .mujoco_params import MujocoOptions
-from .mujoco_scene import build_scene, set_surface
+from .mujoco_scene import build_scene, check_surface, set_surface
 
 __all__ = ['MujocoPlant']
 
@@ -71,6 +71,10 @@ class MujocoPlant:
     def surface(self, surface: ElasticSurface | None) -> None:
         set_surface(self.scene, self.d, surface)
         self._surface = surface
+
+    def check_surface(self, surface: ElasticSurface) -> None:
+        """Raise SurfaceError when ``surface`` cannot be set (the sim node validates with it)."""
+        check_surface(self.scene, surface)
 
     @property
     def q(self) -> np.ndarray:

@@ -47,7 +47,7 @@ import numpy as np
 
 from .mujoco_params import MujocoOptions
 
-__all__ = ['Scene', 'build_scene', 'plate_mass', 'set_surface']
+__all__ = ['Scene', 'build_scene', 'check_surface', 'plate_mass', 'set_surface']
 
 TOOL_BODY, TOOL_GEOM, SURFACE_GEOM, FT_SITE = 'hfc_tool', 'hfc_tool_sphere', 'hfc_surface', \
     'hfc_ft_site'
@@ -244,6 +244,16 @@ def plate_mass(k: float, timestep: float) -> float:
     return max(PLATE_MASS_MIN, k * (timestep / PLATE_OMEGA_DT) ** 2)
 
 
+def check_surface(scene: Scene, surface: ElasticSurface) -> None:
+    """Raise SurfaceError when the table top sized at start-up cannot take ``surface``."""
+    m = scene.model
+    omega_dt = math.sqrt(surface.k / m.body_mass[scene.plate]) * m.opt.timestep
+    if omega_dt > PLATE_OMEGA_DT_MAX:
+        raise SurfaceError(f'physics:=mujoco: stiffness {surface.k:g} N/m is too high for the '
+                           f'plate sized at start-up (at most {PLATE_K_RANGE:g} times the '
+                           'start-up stiffness; restart the sim with it)')
+
+
 def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) -> None:
     """
     Place the plate and set its spring (model); None: no contact at all.
@@ -256,17 +266,13 @@ def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) 
     if surface is None:
         m.opt.disableflags |= disable
         return
+    check_surface(scene, surface)
     m.opt.disableflags &= ~disable
     b, j = scene.plate, m.dof_jntid[scene.plate_dof]
     m.body_pos[b] = scene.R_W_root.T @ (surface.x0_W - scene.o_W)
     quat = np.zeros(4)
     mujoco.mju_quatZ2Vec(quat, -(scene.R_W_root.T @ surface.n_W))  # +z out of the surface
     m.body_quat[b] = quat
-    omega_dt = math.sqrt(surface.k / m.body_mass[b]) * m.opt.timestep
-    if omega_dt > PLATE_OMEGA_DT_MAX:
-        raise SurfaceError(f'physics:=mujoco: stiffness {surface.k:g} N/m is too high for the '
-                           f'plate sized at start-up (at most {PLATE_K_RANGE:g} times the '
-                           'start-up stiffness; restart the sim with it)')
     k_c = CONTACT_STIFFNESS_RATIO * surface.k
     m.jnt_stiffness[j] = 1.0 / (1.0 / surface.k - 1.0 / k_c)  # in series: k in all
     tran = m.body_invweight0[scene.tool_body, 0] + m.body_invweight0[b, 0]

@@ -175,6 +175,9 @@ class SimNode(Node):
         if not v['surface_point'] and self.touch_offset:  # touching the sphere tool
             surface = ElasticSurface.create(surface.k, self.p0_W + self.touch_offset
                                             * surface.n_W, surface.n_W)
+        check = getattr(getattr(self, 'sim', None), 'check_surface', None)  # MuJoCo's limits
+        if check is not None:
+            check(surface)
         return (surface if v['surface_enabled'] else None), v['sensor_frozen']
 
     def _set_surface(self, values: tuple[ElasticSurface | None, bool]) -> None:

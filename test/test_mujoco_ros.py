@@ -9,7 +9,7 @@ The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
   touch and the errors over the whole run after t = 5 s stay within loose bounds (a loaded 2-core
   machine; docs/results_mujoco.md has the measured figures);
 * bad settings (unknown physics, a zero tool radius, a zero surface normal) stop the sim at
-  start-up with a clear error.
+  start-up with a clear error; at run time a stiffness the table top cannot take is refused.
 """
 from __future__ import annotations
 
@@ -20,7 +20,9 @@ from hybrid_force_controller.ros.tracking import TrackingMeter
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
@@ -120,3 +122,18 @@ def test_bad_settings_stop_the_sim_at_start_up(tmp_path, override, words):
         sim.stop()
     assert sim.returncode == 1, sim.tail()
     assert 'invalid configuration' in sim.log_since() and words in sim.log_since(), sim.tail()
+
+
+def test_run_time_stiffness_is_bounded_by_the_table_top(tmp_path):
+    domain = domain_id('mujoco_ros')
+    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain, _files('params.yaml', 'mujoco.yaml'))
+    with Spun(domain) as spun, sim:
+        client = AsyncParameterClient(spun.node('param_client'), 'sim')
+        wait_for(client.services_are_ready, 'the sim parameter services', alive=[sim])
+        ok = wait_future(client.set_parameters([Parameter('stiffness', value=3400.0)]))
+        bad = wait_future(client.set_parameters([Parameter('stiffness', value=1e5)]))
+        got = wait_future(client.get_parameters(['stiffness']))
+    assert ok.results[0].successful, ok.results[0].reason
+    assert not bad.results[0].successful
+    assert 'too high for the plate' in bad.results[0].reason
+    assert got.values[0].double_value == 3400.0

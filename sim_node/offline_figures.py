@@ -5,9 +5,10 @@ Reads the same config files as ``demo`` (config/params.yaml or panda_params.yaml
 panda_table.yaml, then mujoco.yaml and demo's tool mass for ``physics:=mujoco``), builds the
 controller's runtime and the sim's plant from them as the nodes do (sim_node/plants.py), and
 runs the offline engine (core/engine.py) with the timing measured over DDS
-(``TimingModel.ros_measured``, seeded), so the figures do not depend on the machine's load: RMS tangential position and true-force errors
-over t >= 5 s, the contact lost after the first touch, and the plant's cost per 1 ms step
-(``plant_step_us``: step + measure, wall time of this process).
+(``TimingModel.ros_measured``, seeded), so the figures do not depend on the machine's load:
+RMS tangential position and true-force errors over t >= 5 s, the contact lost after the first
+touch, and the plant's cost per 1 ms step (``plant_step_us``: step + measure, wall time of this
+process).
 """
 from __future__ import annotations
 

@@ -19,9 +19,9 @@ from hybrid_force_controller.core.robot_model import RobotModel
 from hybrid_force_controller.ros.tracking import TrackingMeter
 import numpy as np
 import pytest
-from rclpy.qos import QoSProfile
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import QoSProfile
 from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 

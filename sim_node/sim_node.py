@@ -43,9 +43,12 @@ from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidati
 from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
 from hybrid_force_controller.core.simulator import Measurement
 from hybrid_force_controller.ros.cdr import read_float64_array
-from hybrid_force_controller.ros.loop_timing import RateMeter
+from hybrid_force_controller.ros.control_loop import schedule_process, set_thread_scheduling
+from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
 from hybrid_force_controller.ros.model_source import expand_description
-from hybrid_force_controller.ros.node_params import check_choice, EXECUTOR_SPEC
+from hybrid_force_controller.ros.node_params import (check_choice, check_cpus,
+                                                     CPU_AFFINITY_SPEC, EXECUTOR_SPEC,
+                                                     THREAD_PRIORITY_SPEC)
 from hybrid_force_controller.ros.parameters import declare_schema, ParameterBinder
 from hybrid_force_controller.ros.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS, DESCRIPTION_QOS,
                                              STATE_OUT_QOS)
@@ -88,7 +91,7 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
      'integrates (older time is dropped and counted).', 1, 100000, {}),
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
      0.0, 1e5, {}),
-)) + MUJOCO_SCHEMA + (EXECUTOR_SPEC,)
+)) + MUJOCO_SCHEMA + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
 
 
 class SimNode(Node):
@@ -124,12 +127,29 @@ class SimNode(Node):
         self.t_cmd = self.t_pub = -np.inf
         self.counters = {'steps': 0, 'commands': 0, 'commands_rejected': 0,
                          'watchdog_steps': 0, 'late_callbacks': 0, 'lost_periods': 0,
-                         'errors': 0}
+                         'errors': 0, 'command_timeouts': 0}
         self.command_rate = RateMeter()
+        self.command_gaps, self.state_gaps = GapMeter(), GapMeter()  # wall, per report
+        self._timed_out = False
         self._make_messages()
         self._make_endpoints(urdf)
         self._t_wall = time.monotonic()
         self._publish(self.sim.measure())
+        self._scheduling = (v['thread_priority'], check_cpus(v['cpu_affinity']))
+
+    def schedule_this_thread(self) -> None:
+        """
+        Give the calling thread, the one that spins this node, its real-time scheduling.
+
+        SCHED_FIFO ``thread_priority`` (and ``cpu_affinity``) for it, two below for the
+        middleware's threads (``control_loop.schedule_process``). ``main`` calls it; a node
+        built in another program leaves that program's threads alone.
+        """
+        priority, cpus = self._scheduling
+        warnings = schedule_process(priority + 1, 'sim thread') if priority > 0 else []
+        warnings += set_thread_scheduling(priority, cpus)
+        for warning in warnings[:1]:
+            self.get_logger().warning(warning.replace('control thread', 'sim thread'))
 
     def _make_messages(self) -> None:
         """Messages built once and refilled in place by every publish."""
@@ -204,6 +224,7 @@ class SimNode(Node):
             return
         self.counters['commands'] += 1
         self.command_rate.count += 1
+        self.command_gaps.mark(time.monotonic())
         self.tau_cmd, self.t_cmd = tau[self.to_model], self._time()
         if self.lockstep:
             self._step(self.tau_cmd)
@@ -235,9 +256,12 @@ class SimNode(Node):
     def _effort(self) -> np.ndarray | None:
         """Held command; zeros once it is older than command_timeout; None (brakes) before."""
         if self.tau_cmd is None or self._time() - self.t_cmd <= self.command_timeout:
+            self._timed_out = False
             return self.tau_cmd
-        self.get_logger().warning('no valid command within command_timeout: zero effort',
-                                  throttle_duration_sec=1.0)
+        if not self._timed_out:  # one count and one warning per timeout
+            self._timed_out = True
+            self.counters['command_timeouts'] += 1
+            self.get_logger().warning('no valid command within command_timeout: zero effort')
         return np.zeros_like(self.tau_cmd)
 
     def _step(self, tau: np.ndarray | None, periods: int = 1) -> None:
@@ -279,6 +303,7 @@ class SimNode(Node):
             true.header.stamp = stamp
             self.pub_true.publish(true)
         self.n_pub += 1
+        self.state_gaps.mark(time.monotonic())
         if self.pub_clock is not None:
             self.clock_msg.clock = stamp
             self.pub_clock.publish(self.clock_msg)
@@ -289,6 +314,8 @@ class SimNode(Node):
                  else self.get_clock().now()).to_msg()
         values = {**self.counters,
                   'commands_per_s': f'{self.command_rate.rate(time.monotonic()):.4g}',
+                  **{k: f'{v:.4g}' for k, v in self.command_gaps.take('command_gap').items()},
+                  **{k: f'{v:.4g}' for k, v in self.state_gaps.take('state_gap').items()},
                   'sim_time_s': f'{self.sim.t:.4f}', 'lockstep': self.lockstep}
         status = DiagnosticStatus(
             level=DiagnosticStatus.OK, name=f'{self.get_fully_qualified_name()}: simulated arm',
@@ -317,7 +344,12 @@ def main(args: list[str] | None = None) -> int:
         print_help('sim', "Simulated arm against an elastic surface (node 'sim'): efforts in, "
                    'joint_states + F/T wrench out.', HELP_PARAMETERS)
         return 0
-    return run_node(SimNode, 'sim', args)
+
+    def make_node() -> SimNode:
+        node = SimNode()
+        node.schedule_this_thread()
+        return node
+    return run_node(make_node, 'sim', args)
 
 
 if __name__ == '__main__':

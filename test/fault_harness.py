@@ -33,7 +33,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import NodeProcess, parse_diagnostics
+from ros_helpers import NodeProcess, parse_diagnostics, stamp_s
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -43,10 +43,6 @@ RAW = '/fault_injection/raw'
 WALL_TIMEOUT = 90.0  # only against hangs
 INJECTED = 'fault_injection'  # layout label of commands this process publishes itself
 Hook = Callable[[Any], list]
-
-
-def stamp_s(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 def set_stamp(msg, t: float):

@@ -12,7 +12,9 @@ Shared helpers of the tests that run over real DDS.
   executor thread.
 * :func:`wait_for`, :func:`wait_future`: wait on a condition with a wall timeout that only
   guards against a hang (no test asserts wall time).
-* :func:`parse_diagnostics`: a ``/diagnostics`` status as a dict with typed values.
+* :func:`parse_diagnostics`: a ``/diagnostics`` status as a dict with typed values;
+* :func:`stamp_s`: a message stamp in seconds; :class:`ForceLog`: the true normal force
+  (``sim/contact_wrench``) and the latest ``/diagnostics`` of each node, stamped.
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ _DOMAIN_OFFSETS = {
     'any_arm': 4, 'colcon_build': 5, 'demo': 6, 'recorder': 7, 'realtime': 8,
     'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
-    'mujoco_ros': 30,
+    'discipline': 18, 'discipline_refused': 19, 'mujoco_ros': 30,
 }
 
 
@@ -243,3 +245,66 @@ def parse_diagnostics(msg: Any) -> dict[str, Any]:
                     pass
         values[kv.key] = v
     return values
+
+
+def stamp_s(stamp: Any) -> float:
+    """Return a ``builtin_interfaces/Time`` in seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class ForceLog:
+    """
+    The true normal force ``n . f`` of ``sim/contact_wrench`` and the latest diagnostics.
+
+    Spun on a :class:`Spun` context: ``ForceLog(spun)``; stamps in seconds.
+    """
+
+    def __init__(self, spun: Spun, n_W: Sequence[float] = (0.0, -1.0, 0.0),
+                 name: str = 'force_log') -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import WrenchStamped
+        from rclpy.qos import QoSProfile
+        self.n_W = tuple(float(x) for x in n_W)
+        self.lock = threading.Lock()
+        self.force: list[tuple[float, float]] = []
+        self.diags: dict[str, dict[str, Any]] = {}
+        self.node = spun.node(name)
+        q = QoSProfile(depth=1000)
+        self.node.create_subscription(WrenchStamped, 'sim/contact_wrench', self._on_force, q)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, q)
+
+    def _on_force(self, msg: Any) -> None:
+        f = msg.wrench.force
+        n = self.n_W
+        with self.lock:
+            self.force.append((stamp_s(msg.header.stamp), n[0] * f.x + n[1] * f.y + n[2] * f.z))
+
+    def _on_diag(self, msg: Any) -> None:
+        d = parse_diagnostics(msg)
+        d['received_s'] = time.monotonic()
+        with self.lock:
+            self.diags[msg.status[0].hardware_id] = d
+
+    def diag(self, hardware_id: str) -> dict[str, Any]:
+        """Return the latest /diagnostics values of ``hardware_id`` ({} before any)."""
+        with self.lock:
+            return dict(self.diags.get(hardware_id, {}))
+
+    def fresh_diag(self, hardware_id: str, alive: Iterable[NodeProcess] = ()) -> dict[str, Any]:
+        """Wait for a status of ``hardware_id`` newer than now and return it."""
+        t = time.monotonic()
+        wait_for(lambda: self.diag(hardware_id).get('received_s', 0.0) > t,
+                 f'a new /diagnostics status of {hardware_id}', alive=alive)
+        return self.diag(hardware_id)
+
+    def latest_t(self) -> float:
+        """Return the stamp of the newest force sample, s (0 before any)."""
+        with self.lock:
+            return self.force[-1][0] if self.force else 0.0
+
+    def forces(self, t0: float = -float('inf'), t1: float = float('inf')) -> tuple[Any, Any]:
+        """Return the stamps and forces in [t0, t1] as two numpy arrays."""
+        import numpy as np
+        with self.lock:
+            pairs = [(t, f) for t, f in self.force if t0 <= t <= t1]
+        return (np.array([t for t, _ in pairs]), np.array([f for _, f in pairs]))

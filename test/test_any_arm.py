@@ -361,4 +361,3 @@ def test_controller_node_starts_for_the_panda(panda_node):
     wait_for(publish_inputs_until_an_effort, 'a computed effort', alive=[proc], poll=0.05)
     assert len(efforts[-1]) == 7 and np.all(np.isfinite(efforts[-1]))
     assert np.all(np.abs(efforts[-1]) <= np.array([87, 87, 87, 87, 12, 12, 12]) + 1e-9)
-    assert proc.alive

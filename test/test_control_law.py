@@ -175,8 +175,11 @@ def test_rdot_normal_part_differs_when_k_is_not_k_s(model):
 
 
 # ---------------------------------------------------------------- eq. (29)
-def test_check_stability_accepts_paper_gains():
-    check_stability(40.0, 0.1, 6000.0)  # 1600 > 1200
+def test_check_stability_accepts_paper_gains_up_to_the_strict_bound():
+    assert check_stability(40.0, 0.1, 6000.0) is None  # 1600 > 1200
+    assert check_stability(40.0, 0.1, 7999.0) is None  # 1600 > 1599.8
+    with pytest.raises(ParameterValidationError):
+        check_stability(40.0, 0.1, 8000.0)  # 1600 = 1600: eq. (29) is strict
 
 
 def test_check_stability_rejects_and_states_both_sides():

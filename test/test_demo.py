@@ -17,7 +17,7 @@ from rosbags.highlevel import AnyReader
 
 
 REPO = Path(__file__).resolve().parents[1]
-DURATION_S = 6.0
+DURATION_S = 12.0  # the metrics start at 5 s: 7 s of them
 RATE_HZ = 1000.0
 TELEMETRY_HZ = 100.0  # telemetry_rate_hz in config/params.yaml
 DEMO_DOMAIN_ID = str(domain_id('demo'))
@@ -35,6 +35,7 @@ def demo_run(tmp_path_factory, request) -> Path:
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert f'bag:     {out / "bag"}' in proc.stdout
+    assert 'fig6_stiffness.png' in proc.stdout.splitlines()[-2]  # figures: ... every one
     return out, request.param
 
 
@@ -71,5 +72,6 @@ def test_demo_report_outputs(demo_run):
     assert metrics['rms_position_error_m'] <= 5e-4 * loose
     assert metrics['rms_force_error_n'] <= 0.05 * loose
     assert metrics['contact_lost_s'] == 0.0
-    for name in ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png'):
+    for name in ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png',
+                 'fig6_stiffness.png'):
         assert (report / name).stat().st_size > 5000, name

@@ -74,10 +74,11 @@ def test_namespace_moves_every_topic(two_arms):
     w, procs = two_arms
     for ns in F_D:
         ctrl, sim = f'{ns}/hybrid_force_controller', f'{ns}/sim'
+        rt = f'{ns}/_hybrid_force_controller_rt'  # the control thread's node (1 kHz I/O)
         expected = {
-            (f'{ns}/joint_states', False): {ctrl}, (f'{ns}/joint_states', True): {sim},
-            (f'{ns}/force_torque_sensor_broadcaster/wrench', False): {ctrl},
-            (f'{ns}/effort_controller/commands', True): {ctrl},
+            (f'{ns}/joint_states', False): {rt}, (f'{ns}/joint_states', True): {sim},
+            (f'{ns}/force_torque_sensor_broadcaster/wrench', False): {rt},
+            (f'{ns}/effort_controller/commands', True): {rt},
             (f'{ns}/effort_controller/commands', False): {sim},
             (f'{ns}/hybrid_force_controller/x', True): {ctrl},
             (f'{ns}/robot_description', True): {sim},

@@ -13,17 +13,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
+from ros_helpers import domain_id, NodeProcess, Spun, stamp_s, wait_for, wait_future
 from rosgraph_msgs.msg import Clock
 
 
 WALL_TIMEOUT = 300.0
 N_W = np.array([0.0, -1.0, 0.0])  # config/params.yaml
 P_TANGENT = np.eye(3) - np.outer(N_W, N_W)
-
-
-def _t(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 class _Listener(Node):
@@ -42,15 +38,15 @@ class _Listener(Node):
                                  lambda m: self._point(self.x_d, m), qos)
 
     def _on_clock(self, msg):
-        self.clock = max(self.clock, _t(msg.clock))
+        self.clock = max(self.clock, stamp_s(msg.clock))
 
     def _on_force(self, msg):
         f = msg.wrench.force
-        self.force[_t(msg.header.stamp)] = np.array([f.x, f.y, f.z])
+        self.force[stamp_s(msg.header.stamp)] = np.array([f.x, f.y, f.z])
 
     @staticmethod
     def _point(store, msg):
-        store[_t(msg.header.stamp)] = np.array([msg.point.x, msg.point.y, msg.point.z])
+        store[stamp_s(msg.header.stamp)] = np.array([msg.point.x, msg.point.y, msg.point.z])
 
     def force_error_rms(self, t0, t1, f_d):
         e = [N_W @ f - f_d for t, f in list(self.force.items()) if t0 <= t <= t1]

@@ -83,7 +83,7 @@ def test_integer_is_accepted_as_double(controller):
     assert result.successful, result.reason
     value = _get(client, 'f_d')
     assert isinstance(value, float) and value == 2.0
-    assert node.runtime.params.law.f_d == 2.0
+    assert node.params.law.f_d == 2.0
     assert _set(client, f_d=1.0)[0].successful
 
 
@@ -92,7 +92,7 @@ def test_integer_normal_is_normalised(controller):
     (result,) = _set(client, n=[0, 2, 0])
     assert result.successful, result.reason
     assert list(_get(client, 'n')) == [0.0, 1.0, 0.0]
-    np.testing.assert_array_equal(node.runtime.params.law.n, [0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(node.params.law.n, [0.0, 1.0, 0.0])
     assert _set(client, n=[0.0, -1.0, 0.0])[0].successful
 
 
@@ -102,7 +102,7 @@ def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
     assert not result.successful
     assert '100' in result.reason and '1200' in result.reason, result.reason
     assert _get(client, 'lambda1') == 40.0
-    assert node.runtime.params.law.lambda1 == 40.0
+    assert node.params.law.lambda1 == 40.0
 
 
 @pytest.mark.parametrize('name, value', [
@@ -116,24 +116,24 @@ def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
 def test_bad_value_is_rejected_and_nothing_changes(controller, name, value):
     node, client = controller
     before = _get(client, name)
-    params_before = node.runtime.params
+    params_before = node.params
     (result,) = _set(client, **{name: value})
     assert not result.successful
     assert result.reason
     assert list(np.atleast_1d(_get(client, name))) == list(np.atleast_1d(before))
-    assert node.runtime.params is params_before
+    assert node.params is params_before
 
 
 def test_atomic_multi_set_with_one_bad_value_changes_nothing(controller):
     node, client = controller
-    params_before = node.runtime.params
+    params_before = node.params
     bad = [Parameter('f_d', value=3.0), Parameter('lambda1', value=50.0),
            Parameter('k_d', value=-1.0)]
     result = _wait(client.set_parameters_atomically(bad)).result
     assert not result.successful and result.reason
     assert (_get(client, 'f_d'), _get(client, 'lambda1'), _get(client, 'k_d')) == (
         1.0, 40.0, 60.0)
-    assert node.runtime.params is params_before
+    assert node.params is params_before
 
 
 def test_atomic_multi_set_is_validated_as_a_whole(controller):
@@ -142,7 +142,7 @@ def test_atomic_multi_set_is_validated_as_a_whole(controller):
     good = [Parameter('lambda1', value=20), Parameter('lambda2', value=0.01)]
     result = _wait(client.set_parameters_atomically(good)).result
     assert result.successful, result.reason
-    assert (node.runtime.params.law.lambda1, node.runtime.params.law.lambda2) == (20.0, 0.01)
+    assert (node.params.law.lambda1, node.params.law.lambda2) == (20.0, 0.01)
     restore = [Parameter('lambda2', value=0.1), Parameter('lambda1', value=40.0)]
     assert _wait(client.set_parameters_atomically(restore)).result.successful
 
@@ -152,7 +152,7 @@ def test_params_file_configures_both_nodes():
     running = _Running(lambda ctx: [ControllerNode(context=ctx), SimNode(context=ctx)], args)
     try:
         controller, sim = running.nodes
-        p = controller.runtime.params.law
+        p = controller.params.law
         assert (p.lambda1, p.lambda2, p.k_d, p.k_a, p.k_max, p.k_s, p.f_d) == (
             40.0, 0.1, 60.0, 1500.0, 6000.0, 6000.0, 3.0)
         np.testing.assert_array_equal(np.diag(p.Gamma), [70.0, 70.0])
@@ -167,10 +167,10 @@ def test_params_file_configures_both_nodes():
 
 def test_bool_array_is_refused_with_a_reason(controller):
     node, client = controller
-    params_before = node.runtime.params
+    params_before = node.params
     (result,) = _set(client, n=[True, False, False])
     assert not result.successful and 'booleans' in result.reason, result.reason
-    assert node.runtime.params is params_before
+    assert node.params is params_before
 
 
 def test_bool_array_at_start_up_is_refused():
@@ -192,8 +192,8 @@ def test_empty_arrays_at_start_up_mean_default(tmp_path):
     running = _Running(lambda ctx: [ControllerNode(context=ctx)], args)
     try:
         (node,) = running.nodes
-        np.testing.assert_array_equal(node.runtime.params.runtime.effort_limits, [100.0, 100.0])
-        np.testing.assert_array_equal(node.runtime.params.law.theta_min, [0.0, 0.0])
+        np.testing.assert_array_equal(node.params.runtime.effort_limits, [100.0, 100.0])
+        np.testing.assert_array_equal(node.params.law.theta_min, [0.0, 0.0])
         assert list(node.get_parameter('effort_limits').value) == []
     finally:
         running.close()
@@ -217,7 +217,7 @@ def test_dump_and_reload(controller, tmp_path):
                        ['--ros-args', '--params-file', str(path)])
     try:
         (reloaded,) = running.nodes
-        a, b = node.runtime.params, reloaded.runtime.params
+        a, b = node.params, reloaded.params
         for group, field in (('law', 'f_d'), ('law', 'lambda1'), ('law', 'lambda2'),
                              ('law', 'k_d'), ('runtime', 'joints')):
             assert getattr(getattr(a, group), field) == getattr(getattr(b, group), field), field

@@ -17,12 +17,8 @@ import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_for
+from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for
 from std_msgs.msg import Float64
-
-
-def _t(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 class _Watcher(Node):
@@ -43,7 +39,7 @@ class _Watcher(Node):
 
     def _on_force(self, msg) -> None:
         with self.lock:
-            self.t_force = _t(msg.header.stamp)
+            self.t_force = stamp_s(msg.header.stamp)
             if self.t_contact is None and -msg.wrench.force.y > 0.05:
                 self.t_contact = self.t_force
 

@@ -1,9 +1,11 @@
 """Loop timing statistics of a periodic callback (pure numpy; times come from the caller)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ['LoopStats']
+__all__ = ['HoldStats', 'LoopStats']
 
 
 class LoopStats:
@@ -46,3 +48,53 @@ class LoopStats:
                 'compute_p50_ms': float(np.percentile(compute, 50) * 1e3),
                 'compute_p99_ms': float(np.percentile(compute, 99) * 1e3),
                 'samples': float(n)}
+
+
+class HoldStats:
+    """
+    How long each kind of callback held a thread: count, max and p99.9, since :meth:`reset`.
+
+    A fixed histogram per kind (``BIN_S`` wide bins up to ``N_BINS * BIN_S``, the last bin
+    holds everything longer) and an exact maximum, so :meth:`record` costs a list store
+    and a compare whatever the run's length, and :meth:`summary` covers the whole run.
+    """
+
+    BIN_S = 1e-5
+    N_BINS = 10000
+
+    def __init__(self, kinds: tuple[str, ...]) -> None:
+        self.kinds = kinds
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every sample (a new activation)."""
+        self._hist = {k: [0] * self.N_BINS for k in self.kinds}
+        self._max = dict.fromkeys(self.kinds, 0.0)
+
+    def record(self, kind: str, duration_s: float) -> None:
+        """One callback of ``kind`` that held the thread ``duration_s``."""
+        i = int(duration_s * 1e5)
+        self._hist[kind][i if i < self.N_BINS else self.N_BINS - 1] += 1
+        if duration_s > self._max[kind]:
+            self._max[kind] = duration_s
+
+    def summary(self) -> dict[str, float]:
+        """
+        Return ``{kind}_count``, ``{kind}_max_ms``, ``{kind}_p999_ms`` and the same for ``all``.
+
+        p99.9 is the upper edge of the bin that holds it (NaN without samples).
+        """
+        out: dict[str, float] = {}
+        hists = {k: np.array(h) for k, h in self._hist.items()}
+        maxima = dict(self._max)
+        hists['all'] = sum(hists.values())
+        maxima['all'] = max(maxima.values(), default=0.0)
+        for kind, h in hists.items():
+            count = int(h.sum())
+            p999 = math.nan
+            if count:
+                p999 = min((int(np.searchsorted(np.cumsum(h), 0.999 * count)) + 1)
+                           * self.BIN_S, maxima[kind]) * 1e3
+            out.update({f'{kind}_count': float(count), f'{kind}_max_ms': maxima[kind] * 1e3,
+                        f'{kind}_p999_ms': p999})
+        return out

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
 
 import numpy as np
 
@@ -39,29 +38,84 @@ from .params import LawGains
 from .robot_model import RobotModel
 from .stiffness import StiffnessConfig
 
-__all__ = ['K_S_GRID', 'axis_margin', 'delay_margin', 'estimate_operating_points']
+__all__ = ['K_S_GRID', 'MarginCache', 'axis_loop', 'axis_margin', 'delay_margin',
+           'estimate_operating_points', 'margins']
 
-_W = np.logspace(-1.0, 4.5, 2000)  # rad/s
+_W = np.logspace(-1.0, 4.5, 800)  # rad/s (the crossings found agree with 2000 points)
+_S_GRID = 1j * _W
+_BISECTIONS = 32  # |G| = 1 refined to 2^-32 of a grid step (log-spaced)
 K_S_GRID = 5  # k_s values of the estimate's range in the margin (module docstring)
 
 
-def _crossing_margin(G: Callable[[np.ndarray], np.ndarray]) -> float:
-    """Smallest delay that puts a root of ``1 + e^{-s tau} G(s)`` on the imaginary axis."""
-    g = G(1j * _W)
-    mag = np.abs(g) - 1.0
-    best = math.inf
-    for i in np.flatnonzero(np.sign(mag[:-1]) != np.sign(mag[1:])):
-        lo, hi = _W[i], _W[i + 1]
-        for _ in range(40):  # bisection on |G| = 1 (log-spaced)
-            mid = math.sqrt(lo * hi)
-            if (abs(G(np.array([1j * mid]))[0]) - 1.0) * mag[i] > 0:
-                lo = mid
-            else:
-                hi = mid
-        w = math.sqrt(lo * hi)
-        phase = (math.pi + float(np.angle(G(np.array([1j * w]))[0]))) % (2.0 * math.pi)
-        best = min(best, phase / w)
-    return best
+def _polyval(coeffs: np.ndarray, powers: np.ndarray) -> np.ndarray:
+    """
+    Evaluate row-wise polynomials at points given by their powers.
+
+    ``coeffs`` (B, L), highest first; ``powers`` (L, W) for points shared by all rows, or
+    (B, L) for one point a row (``s^(L-1) ... s^0``).
+    """
+    if powers.ndim == 2 and powers.shape[0] == coeffs.shape[1]:
+        return coeffs @ powers.real + 1j * (coeffs @ powers.imag)
+    return np.einsum('ij,ij->i', coeffs, powers)
+
+
+def _powers(s: np.ndarray, L: int) -> np.ndarray:
+    """Return ``s^(L-1), ..., s^0`` stacked along a new last axis."""
+    return s[..., None] ** np.arange(L - 1, -1, -1)
+
+
+def _stable_rows(char: np.ndarray) -> np.ndarray:
+    """
+    Return whether all roots of each characteristic polynomial lie in the open left half.
+
+    Rows are coefficients, highest first, with leading zeros; rows of one degree share one
+    batched eigenvalue problem of their companion matrices.
+    """
+    stable = np.zeros(len(char), dtype=bool)
+    lead = np.argmax(char != 0.0, axis=1)
+    for first in np.unique(lead):
+        rows = np.flatnonzero(lead == first)
+        c = char[rows, first:]
+        deg = c.shape[1] - 1
+        if deg == 0:
+            stable[rows] = True
+            continue
+        comp = np.zeros((len(rows), deg, deg))
+        comp[:, 0, :] = -c[:, 1:] / c[:, :1]
+        comp[:, np.arange(1, deg), np.arange(deg - 1)] = 1.0
+        stable[rows] = np.all(np.linalg.eigvals(comp).real < 0.0, axis=1)
+    return stable
+
+
+def margins(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """
+    Return the delay margin (s) of each loop ``1 + e^{-s tau} num(s) / den(s)``, batched.
+
+    ``num`` and ``den`` are (B, L) coefficient arrays (highest first, zero-padded on the
+    left). A loop unstable without delay has margin 0; one whose ``|G|`` never crosses 1 on
+    the grid has an infinite margin. Otherwise the margin is
+    ``min (pi + arg G(j w) mod 2 pi) / w`` over the crossings ``|G(j w)| = 1``, each found
+    on the log-spaced grid and refined by bisection, all crossings at once.
+    """
+    out = np.full(len(num), math.inf)
+    grid = _powers(_S_GRID, num.shape[1]).T
+    mag = np.abs(_polyval(num, grid) / _polyval(den, grid)) - 1.0
+    rows, cols = np.nonzero(np.sign(mag[:, :-1]) != np.sign(mag[:, 1:]))
+    if len(rows):
+        lo, hi, sign_lo = _W[cols], _W[cols + 1], np.sign(mag[rows, cols])
+        n_c, d_c = num[rows], den[rows]
+        for _ in range(_BISECTIONS):
+            mid = np.sqrt(lo * hi)
+            s = _powers(1j * mid, num.shape[1])
+            g = _polyval(n_c, s) / _polyval(d_c, s)
+            above = (np.abs(g) - 1.0) * sign_lo > 0.0
+            lo, hi = np.where(above, mid, lo), np.where(above, hi, mid)
+        w = np.sqrt(lo * hi)
+        s = _powers(1j * w, num.shape[1])
+        g = _polyval(n_c, s) / _polyval(d_c, s)
+        np.minimum.at(out, rows, ((math.pi + np.angle(g)) % (2.0 * math.pi)) / w)
+    out[~_stable_rows(num + den)] = 0.0
+    return out
 
 
 def _cancel_s(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -71,19 +125,13 @@ def _cancel_s(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return num, den
 
 
-def _stable_without_delay(num: np.ndarray, den: np.ndarray) -> bool:
-    """Roots of ``den + num`` (polynomial coefficients, highest first) in the left half."""
-    n = max(len(num), len(den))
-    poly = np.pad(den, (n - len(den), 0)) + np.pad(num, (n - len(num), 0))
-    return bool(np.all(np.roots(poly).real < 0.0))
-
-
-def axis_margin(g: LawGains, m: float, K_I: float, k: float | None = None,
-                filter_hz: float = 0.0) -> float:
+def axis_loop(g: LawGains, m: float, K_I: float, k: float | None = None,
+              filter_hz: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """
-    Delay margin (s) of one task axis of mass ``m`` (kg).
+    Return the open loop ``G = num / den`` of one task axis of mass ``m`` (kg).
 
-    Along the surface when ``k`` is None, else along n against a surface of stiffness ``k`` (N/m).
+    Along the surface when ``k`` is None, else along n against a surface of stiffness ``k``
+    (N/m); the factors ``s`` common to both are cancelled.
     """
     l1, l2, kd, c = g.lambda1, g.lambda2, g.k_d, 1.0 / g.k_s
     wf = 2.0 * math.pi * filter_hz if filter_hz > 0.0 else math.inf
@@ -94,13 +142,29 @@ def axis_margin(g: LawGains, m: float, K_I: float, k: float | None = None,
         den = np.array([m, 0.0, 0.0, 0.0])
     else:  # G times s^2 F_den / s^2 F_den (F = 1 / F_den, the force filter)
         a = (m * l2 + kd * c * l1 - 1.0) * k
-        num = np.polyadd(np.polymul([B, K_I, 0.0, 0.0], F),
-                         [a, kd * l2 * k + K_I * c * l1 * k, K_I * l2 * k])
-        den = np.polymul([m, 0.0, k, 0.0, 0.0], F)
-    num, den = _cancel_s(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
-    if not _stable_without_delay(num, den):
-        return 0.0
-    return _crossing_margin(lambda s: np.polyval(num, s) / np.polyval(den, s))
+        num = np.convolve([B, K_I, 0.0, 0.0], F)
+        num[-3:] += (a, kd * l2 * k + K_I * c * l1 * k, K_I * l2 * k)
+        den = np.convolve([m, 0.0, k, 0.0, 0.0], F)
+    return _cancel_s(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
+
+
+def _stack(loops: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Stack (num, den) pairs into two left-zero-padded (B, L) arrays."""
+    L = max(max(len(n), len(d)) for n, d in loops)
+    num, den = np.zeros((len(loops), L)), np.zeros((len(loops), L))
+    for i, (n, d) in enumerate(loops):
+        num[i, L - len(n):], den[i, L - len(d):] = n, d
+    return num, den
+
+
+def axis_margin(g: LawGains, m: float, K_I: float, k: float | None = None,
+                filter_hz: float = 0.0) -> float:
+    """
+    Delay margin (s) of one task axis of mass ``m`` (kg).
+
+    Along the surface when ``k`` is None, else along n against a surface of stiffness ``k`` (N/m).
+    """
+    return float(margins(*_stack([axis_loop(g, m, K_I, k, filter_hz)]))[0])
 
 
 def _axis_gains(model: RobotModel, g: LawGains, q: np.ndarray
@@ -137,27 +201,69 @@ def estimate_operating_points(g: LawGains, stiffness: StiffnessConfig
     return points
 
 
+def _pose_loops(model: RobotModel, g: LawGains, q: np.ndarray, filter_hz: float,
+                points: list[tuple[LawGains, float]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every axis loop of one pose: both extreme masses, tangent axes and normal points."""
+    M_x, K_I, n = _axis_gains(model, g, q)
+    masses = np.linalg.eigvalsh(M_x)
+    t_basis = np.linalg.svd(np.eye(len(n)) - np.outer(n, n))[0][:, :len(n) - 1]
+    loops = []
+    for m in (masses.min(), masses.max()):
+        loops += [axis_loop(g, m, float(t @ K_I @ t)) for t in t_basis.T]
+        loops += [axis_loop(g_k, m, float(n @ K_I @ n), k, filter_hz) for g_k, k in points]
+    return loops
+
+
 def delay_margin(model: RobotModel, g: LawGains, q: np.ndarray, filter_hz: float = 0.0,
                  k_values: tuple[float, ...] | None = None,
                  stiffness: StiffnessConfig | None = None) -> float:
     """
-    Return the worst delay margin (s) at configuration ``q``.
+    Return the worst delay margin (s) at configuration ``q``, or over the rows of a 2-D ``q``.
 
     The worst over the task inertia's extreme eigenvalues, both axes, and surface stiffnesses
     ``k_values`` (default k_max and fractions of it); with an enabled ``stiffness`` config also
-    over the k_s the estimate may command (:func:`estimate_operating_points`).
+    over the k_s the estimate may command (:func:`estimate_operating_points`). All the axis
+    loops of all the poses are evaluated in one batch (:func:`margins`).
     """
-    M_x, K_I, n = _axis_gains(model, g, q)
-    masses = np.linalg.eigvalsh(M_x)
     ks = k_values or (g.k_max, 0.3 * g.k_max, 0.1 * g.k_max)
     points = [(g, k) for k in ks]
     if stiffness is not None:
         points += estimate_operating_points(g, stiffness)
-    worst = math.inf
-    t_basis = np.linalg.svd(np.eye(len(n)) - np.outer(n, n))[0][:, :len(n) - 1]
-    for m in (masses.min(), masses.max()):
-        for t in t_basis.T:
-            worst = min(worst, axis_margin(g, m, float(t @ K_I @ t)))
-        for g_k, k in points:
-            worst = min(worst, axis_margin(g_k, m, float(n @ K_I @ n), k, filter_hz))
-    return worst
+    loops = []
+    for q_i in np.atleast_2d(np.asarray(q, dtype=float)):
+        loops += _pose_loops(model, g, q_i, filter_hz, points)
+    return float(margins(*_stack(loops)).min())
+
+
+class MarginCache:
+    """
+    :func:`delay_margin` remembered by the values it depends on (the last ``size`` of them).
+
+    The key holds the gains of the margin (lambda1, lambda2, Gamma, n, k_d, k_s, k_a, k_max),
+    the filter cut-off, the stiffness estimate's range, and the pose: a set of f_d, or of
+    values seen before, costs a dictionary look-up.
+    """
+
+    def __init__(self, size: int = 64) -> None:
+        self.size = size
+        self._values: dict[tuple, float] = {}
+
+    @staticmethod
+    def key(g: LawGains, q: np.ndarray, filter_hz: float,
+            stiffness: StiffnessConfig | None) -> tuple:
+        """Return the values the margin depends on, hashable."""
+        gains = (g.lambda1, g.lambda2, g.Gamma.tobytes(), g.n.tobytes(), g.k_d, g.k_s,
+                 g.k_a, g.k_max)
+        k_range = None if stiffness is None or not stiffness.enabled else (
+            stiffness.k_min, stiffness.k_max, stiffness.valid_tol)
+        return gains, np.asarray(q, dtype=float).tobytes(), float(filter_hz), k_range
+
+    def get(self, model: RobotModel, g: LawGains, q: np.ndarray, filter_hz: float = 0.0,
+            stiffness: StiffnessConfig | None = None) -> float:
+        """Return :func:`delay_margin` for these values, computed once."""
+        key = self.key(g, q, filter_hz, stiffness)
+        if key not in self._values:
+            if len(self._values) >= self.size:
+                self._values.pop(next(iter(self._values)))
+            self._values[key] = delay_margin(model, g, q, filter_hz, stiffness=stiffness)
+        return self._values[key]

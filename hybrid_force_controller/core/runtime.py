@@ -36,7 +36,7 @@ from .control_law import ApproachRef, ControlError, ControlOutput, HybridForceCo
 from .effort import EffortLimiter, SafeHold
 from .inputs import InputError
 from .latest_inputs import LatestInputs
-from .margin import delay_margin
+from .margin import MarginCache
 from .modes import Mode, TickOutput
 from .params import build_params, ControllerParams, ParameterValidationError
 from .reference import BlendedReference, SineReference
@@ -85,6 +85,8 @@ class ControllerRuntime:
         self._rdot_n = 0.0
         self._handover = (-math.inf, 0.0, 0.0)  # (stamp, r_n and rdot_n gaps) at hand-over
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
+        self._q_op: np.ndarray | None = None
+        self._margins = MarginCache()
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -101,30 +103,42 @@ class ControllerRuntime:
         Validate a full set of parameter values -> ControllerParams (ParameterValidationError).
 
         Beyond the schema, the gains must leave a delay margin (margin.py) of at least
-        ``min_delay_margin`` at the arm's latest pose (unchecked before the first state).
+        ``min_delay_margin`` at the operating pose (:attr:`operating_pose`), so whether a
+        set is accepted depends on its values, not on where the arm is at that instant
+        (unchecked before the first state). Margins are cached by the values they depend
+        on, so sets of f_d, or values set before, cost no margin evaluation.
         """
         params = build_params(self.model, values)
         need = params.runtime.min_delay_margin
         margin = self.delay_margin(params)
         if need > 0.0 and margin < need:
             raise ParameterValidationError(
-                f'the gains leave a delay margin of {margin * 1e3:.2f} ms at this pose, less '
-                f'than min_delay_margin = {need * 1e3:.2f} ms (lower k_d, k_a or lambda1, or '
-                'min_delay_margin)')
+                f'the gains leave a delay margin of {margin * 1e3:.2f} ms at the operating '
+                f'pose, less than min_delay_margin = {need * 1e3:.2f} ms (lower k_d, k_a or '
+                'lambda1, or min_delay_margin)')
         return params
+
+    @property
+    def operating_pose(self) -> np.ndarray | None:
+        """
+        Return the pose the delay margin is checked at: the first joint state of this runtime.
+
+        Fixed for the runtime's life (the node makes a runtime per configure); None before.
+        """
+        return self._q_op
 
     def delay_margin(self, params: ControllerParams | None = None) -> float:
         """
-        Return the loop delay the gains tolerate at the latest pose, s (margin.py).
+        Return the loop delay the gains tolerate at the operating pose, s (margin.py).
 
         Inf before the first joint state or at a singular pose.
         """
         params = params or self._params
-        if self._in.state is None:
+        if self._q_op is None:
             return math.inf
         try:
-            return delay_margin(self.model, params.law, self._in.state.q,
-                                params.runtime.force_filter_hz, stiffness=params.stiffness)
+            return self._margins.get(self.model, params.law, self._q_op,
+                                     params.runtime.force_filter_hz, params.stiffness)
         except (np.linalg.LinAlgError, ValueError):
             return math.inf
 
@@ -164,6 +178,8 @@ class ControllerRuntime:
                        qdot: Sequence[float] | None, t: float) -> None:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
         self._in.on_joint_state(names, q, qdot, t)
+        if self._q_op is None and self._in.state is not None:
+            self._q_op = self._in.state.q.copy()
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""

@@ -51,8 +51,17 @@ class _Diagnostics:
         rclpy.init(context=self.context, domain_id=domain,  # Ctrl-C: KeyboardInterrupt
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('ros_bench', context=self.context)
+        from rclpy.parameter_client import AsyncParameterClient
+        from std_msgs.msg import Float64MultiArray
+        from .bare_node import TOPIC_BARE_COMMANDS
+        from .qos import COMMAND_QOS
+        self.sim_history: list[tuple[float, dict[str, str]]] = []
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        # the bare node's commands have a subscriber, as the controller's have the sim
+        self.node.create_subscription(Float64MultiArray, TOPIC_BARE_COMMANDS, lambda m: None,
+                                      COMMAND_QOS, raw=True)
         self.tracking = TrackingMeter(self.node, np.array([0.0, -1.0, 0.0]), 1.0)
+        self.params = AsyncParameterClient(self.node, PKG)
         self.executor = make_executor('single_threaded', self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
@@ -60,13 +69,24 @@ class _Diagnostics:
 
     def _on_diag(self, msg: Any) -> None:
         for st in msg.status:
+            values = {kv.key: kv.value for kv in st.values}
             with self.lock:
-                self.latest[st.hardware_id] = {kv.key: kv.value for kv in st.values}
+                self.latest[st.hardware_id] = values
                 self.received[st.hardware_id] = time.monotonic()
+                if st.hardware_id == 'sim':
+                    self.sim_history.append((time.monotonic(), values))
+
+    def sim_reports(self, first: dict[str, str], last: dict[str, str]) -> list[dict[str, str]]:
+        """Return the sim's reports after ``first`` up to ``last``."""
+        with self.lock:
+            reports = [v for _, v in self.sim_history]
+        ids = [id(r) for r in reports]
+        i, j = ids.index(id(first)), ids.index(id(last))
+        return reports[i + 1:j + 1]
 
     def get(self, hardware_id: str) -> tuple[float, dict[str, str]]:
         with self.lock:
-            return self.received.get(hardware_id, 0.0), dict(self.latest.get(hardware_id, {}))
+            return self.received.get(hardware_id, 0.0), self.latest.get(hardware_id, {})
 
     def wait_new(self, hardware_id: str, after: float, timeout: float = 10.0) -> dict[str, str]:
         deadline = time.monotonic() + timeout
@@ -85,9 +105,10 @@ class _Diagnostics:
         self.thread.join(5.0)
 
 
-def _start(name: str, argv: list[str], env: dict[str, str], log_dir: Path) -> subprocess.Popen:
+def _start(name: str, argv: list[str], env: dict[str, str], log_dir: Path,
+           prefix: Sequence[str] = ()) -> subprocess.Popen:
     with open(log_dir / f'{name}.log', 'wb') as log:
-        return subprocess.Popen([sys.executable, '-m', *argv], env=env, stdout=log,
+        return subprocess.Popen([*prefix, sys.executable, '-m', *argv], env=env, stdout=log,
                                 stderr=subprocess.STDOUT)
 
 
@@ -114,11 +135,11 @@ def _warm_up(diag: _Diagnostics, procs: dict[str, subprocess.Popen]) -> None:
     time.sleep(2.0)  # the first second of running
 
 
-def _freeze(proc: subprocess.Popen, count: int, hold_s: float = 0.03) -> list[float]:
-    """SIGSTOP the process for ``hold_s`` ``count`` times, 1 s apart; wall times of each."""
+def _freeze(proc: subprocess.Popen, count: int, hold_s: float) -> list[float]:
+    """SIGSTOP the process for ``hold_s`` ``count`` times, 2 s apart; wall times of each."""
     times = []
     for _ in range(count):
-        time.sleep(1.0)
+        time.sleep(2.0)
         times.append(time.time())
         proc.send_signal(19)  # SIGSTOP: a scheduler hiccup of hold_s
         time.sleep(hold_s)
@@ -126,71 +147,150 @@ def _freeze(proc: subprocess.Popen, count: int, hold_s: float = 0.03) -> list[fl
     return times
 
 
-def _one_run(duration_s: float, load_duty: float, params: list[str], domain: int,
-             log_dir: Path, freezes: int = 0) -> dict[str, float]:
+def _storm_values(rate_hz: float, duration_s: float) -> list[tuple[str, float]]:
+    """Return the sets: f_d and lambda1 alternate, the last f_d is 1.5 N, the last lambda1 40."""
+    count = max(2, int(round(rate_hz * duration_s)))
+    n_f, n_l = (count + 1) // 2, count // 2
+    f_d = [1.5 if (n_f - 1 - j) % 2 == 0 else 1.0 for j in range(n_f)]
+    l1 = [40.0 if (n_l - 1 - j) % 2 == 0 else 42.0 for j in range(n_l)]
+    return [('f_d', f_d[k // 2]) if k % 2 == 0 else ('lambda1', l1[k // 2])
+            for k in range(count)]
+
+
+def _param_storm(diag: _Diagnostics, rate_hz: float, duration_s: float) -> dict[str, Any]:
+    """Send the storm's sets at ``rate_hz`` without waiting for answers; count the answers."""
+    from rclpy.parameter import Parameter
+    futures, t_start = [], time.monotonic()
+    for k, (name, value) in enumerate(_storm_values(rate_hz, duration_s)):
+        time.sleep(max(t_start + k / rate_hz - time.monotonic(), 0.0))
+        if name == 'f_d':
+            diag.tracking.set_f_d(time.time(), value)
+        futures.append(diag.params.set_parameters([Parameter(name, value=value)]))
+    t_end = time.time()
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and not all(f.done() for f in futures):
+        time.sleep(0.05)
+    ok = sum(1 for f in futures if f.done() and all(r.successful for r in f.result().results))
+    return {'storm_sets': len(futures), 'storm_sets_successful': ok, 'storm_end_wall': t_end}
+
+
+def _sim_window(reports: list[dict[str, str]]) -> dict[str, float]:
+    """Return the worst effort and joint-state gaps at the plant over the sim's reports."""
+    def worst(key: str) -> float:
+        values = [float(r.get(key, 'nan')) for r in reports]
+        return max((v for v in values if v == v), default=float('nan'))
+    return {k: worst(k) for k in ('command_gap_p99_ms', 'command_gap_max_ms',
+                                  'state_gap_p99_ms', 'state_gap_max_ms')}
+
+
+def _controller_holds(ctrl: dict[str, str]) -> dict[str, float]:
+    """Return the controller's holds: the longest, and each callback kind's max and p99.9."""
+    keys = [k for k in ctrl if k.startswith('hold_') or k.startswith('loop_hold_')]
+    return {f'controller_{k}': float(ctrl[k]) for k in keys if not k.endswith('_count')}
+
+
+def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
+            procs: dict[str, subprocess.Popen]) -> None:
+    """Start the processes of a run into ``procs`` (one by one: a signal stops those started)."""
+    ros_args = ['--ros-args', '--params-file', str(find_config()), *cfg['params']]
+    pin = ['taskset', '-c', '0'] if cfg['one_core'] else []
+    procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args], env, log_dir, pin)
+    procs['controller'] = _start('controller', [f'{PKG}.ros.controller_node', *ros_args], env,
+                                 log_dir, pin)
+    procs['bare'] = _start('bare', [f'{PKG}.ros.bare_node'], env, log_dir)
+    if cfg['load_duty'] > 0.0:
+        bag = log_dir / f'bag_{time.monotonic_ns()}'
+        procs['recorder'] = _start('recorder', [f'{PKG}.ros.recorder_node', str(bag)], env,
+                                   log_dir)
+        procs['load'] = _start('load', [f'{PKG}.ros.load', '--duty', str(cfg['load_duty'])],
+                               env, log_dir)
+
+
+def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    ros_args = ['--ros-args', '--params-file', str(find_config()), *params]
-    procs: dict[str, subprocess.Popen] = {}
     diag = _Diagnostics(domain)
+    procs: dict[str, subprocess.Popen] = {}
+    extra: dict[str, Any] = {}
     try:
-        procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args], env, log_dir)
-        procs['controller'] = _start('controller', [f'{PKG}.ros.controller_node', *ros_args],
-                                     env, log_dir)
-        if load_duty > 0.0:
-            bag = log_dir / f'bag_{domain}_{time.monotonic_ns()}'
-            procs['recorder'] = _start('recorder', [f'{PKG}.ros.recorder_node', str(bag)],
-                                       env, log_dir)
-            procs['load'] = _start('load', [f'{PKG}.ros.load', '--duty', str(load_duty)],
-                                   env, log_dir)
+        _launch(cfg, env, log_dir, procs)
         _warm_up(diag, procs)
         meter = CpuMeter({n: p.pid for n, p in procs.items() if n != 'load'})
         sim0 = diag.wait_new('sim', time.monotonic())
         t0 = time.monotonic()
         meter.start()
-        t_stamp0, t_wall0 = diag.tracking.latest, time.monotonic()
-        frozen = _freeze(procs['controller'], freezes)
-        time.sleep(max(duration_s - (time.monotonic() - t_wall0), 0.0))
+        t_stamp0 = diag.tracking.latest
+        frozen = _freeze(procs['controller'], cfg['freezes'], cfg['freeze_ms'] * 1e-3)
+        if cfg['param_storm'] > 0.0:
+            time.sleep(2.0)
+            extra = _param_storm(diag, cfg['param_storm'], 5.0)
+        time.sleep(max(cfg['duration'] - (time.monotonic() - t0), 0.0))
         cpu = meter.stop()
         t_end = diag.tracking.latest
-        tracking = diag.tracking.figures(t_stamp0, t_end)
-        if freezes:  # the window of the freezes, and the last 6 s (after them)
-            during = diag.tracking.figures(frozen[0] - 0.5, frozen[-1] + 1.0)
-            last = diag.tracking.figures(t_end - 6.0, t_end)
-            tracking.update({'freezes': freezes, 'freeze_max_force_n': during['max_force_n'],
-                             'freeze_contact_lost_s': during['contact_lost_s'],
-                             'last_6s_rms_force_error_n': last['rms_force_error_n']})
         sim1 = diag.wait_new('sim', time.monotonic())
         t1 = time.monotonic()
         ctrl = diag.wait_new(PKG, t1)
+        figures = _figures(cfg, diag, cpu, sim0, sim1, t1 - t0, ctrl)
+        figures.update(_tracking(diag, t_stamp0, t_end, frozen, extra))
     finally:
         _stop(procs)
         diag.close()
-    commands = (int(sim1['commands']) - int(sim0['commands'])) / (t1 - t0)
+    return figures
+
+
+def _figures(cfg, diag, cpu, sim0, sim1, elapsed, ctrl) -> dict[str, Any]:
     figures = {f'{n}_cpu_percent': round(v, 1) for n, v in cpu.items()}
-    figures['commands_per_s_at_plant'] = round(commands, 1)
+    for name in ('controller', 'sim'):
+        figures[f'{name}_cpu_over_bare'] = round(cpu[name] / cpu['bare'], 2)
+    figures['commands_per_s_at_plant'] = round(
+        (int(sim1['commands']) - int(sim0['commands'])) / elapsed, 1)
+    figures['sim_command_timeouts'] = (int(sim1.get('command_timeouts', 0))
+                                       - int(sim0.get('command_timeouts', 0)))
+    figures.update(_sim_window(diag.sim_reports(sim0, sim1)))
     for key in ('loop_period_p50_ms', 'loop_period_p99_ms', 'delay_p50_ms', 'delay_p99_ms',
                 'delay_max_ms', 'commands_per_s'):
         figures[f'controller_{key}'] = float(ctrl.get(key, 'nan'))
+    figures.update(_controller_holds(ctrl))
     figures['sim_lost_periods'] = int(sim1.get('lost_periods', 0))
-    figures.update({f'tracking_{k}': v for k, v in tracking.items()})
     return figures
+
+
+def _tracking(diag, t_stamp0, t_end, frozen, storm) -> dict[str, Any]:
+    tracking = diag.tracking.figures(t_stamp0, t_end)
+    for k, t in enumerate(frozen):  # each freeze: the 6 s after it
+        after = diag.tracking.figures(t, t + 6.0)
+        tracking[f'freeze{k}_max_force_n'] = after.get('max_force_n', float('nan'))
+        tracking[f'freeze{k}_contact_lost_s'] = after['contact_lost_s']
+        tracking[f'freeze{k}_settle_s'] = diag.tracking.settle_time(t, 1.0, 0.1)
+    if storm:
+        tracking['storm_sets'] = storm['storm_sets']
+        tracking['storm_sets_successful'] = storm['storm_sets_successful']
+        tracking['storm_settle_s'] = diag.tracking.settle_time(storm['storm_end_wall'], 1.5)
+    return {f'tracking_{k}': v for k, v in tracking.items()}
 
 
 def ros_loop_figures(duration_s: float = 20.0, load_duty: float = 0.3,
                      params: Sequence[str] = (), domain: int | None = None,
-                     freezes: int = 0) -> dict[str, Any]:
+                     freezes: int = 0, freeze_ms: float = 30.0, one_core: bool = False,
+                     param_storm: float = 0.0, loaded: bool = True) -> dict[str, Any]:
     """
-    Measure the real-time loop alone and under load (recorder + ``load_duty`` of a core).
+    Measure the real-time loop alone and (``loaded``) under load.
 
-    ``freezes``: SIGSTOP the controller for 30 ms that many times in each run.
+    Load: a recorder and ``load_duty`` of a core busy. ``freezes``: SIGSTOP the controller
+    for ``freeze_ms`` that many times in each run; ``one_core``: the sim and the controller
+    pinned to CPU 0; ``param_storm``: parameter sets per second during 5 s of each run.
     """
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38')) if domain is None else domain
+    cfg = {'duration': duration_s, 'params': list(params), 'freezes': freezes,
+           'freeze_ms': freeze_ms, 'one_core': one_core, 'param_storm': param_storm}
+    out: dict[str, Any] = {'ros_duration_s': duration_s, 'ros_params': list(params),
+                           'ros_one_core': one_core, 'ros_param_storm_per_s': param_storm}
     with tempfile.TemporaryDirectory(prefix='bench_ros_') as tmp:
-        alone = _one_run(duration_s, 0.0, list(params), domain, Path(tmp), freezes)
-        loaded = _one_run(duration_s, load_duty, list(params), domain, Path(tmp), freezes)
-    return {'ros_duration_s': duration_s, 'ros_params': list(params), 'ros_alone': alone,
-            f'ros_with_recorder_and_{round(100 * load_duty)}pct_load': loaded}
+        out['ros_alone'] = _one_run({**cfg, 'load_duty': 0.0}, domain, Path(tmp))
+        if loaded:
+            out[f'ros_with_recorder_and_{round(100 * load_duty)}pct_load'] = _one_run(
+                {**cfg, 'load_duty': load_duty}, domain, Path(tmp))
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -205,15 +305,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--masses', default='[0.65, 1.35]',
                     help="the sim's link masses (config/params.yaml arm: 1.3, 0.9 kg)")
     ap.add_argument('--freezes', type=int, default=0,
-                    help='SIGSTOP the controller for 30 ms this many times (1 s apart)')
+                    help='SIGSTOP the controller this many times (2 s apart)')
+    ap.add_argument('--freeze-ms', type=float, default=30.0, help='length of each freeze, ms')
+    ap.add_argument('--one-core', action='store_true',
+                    help='pin the sim and the controller to CPU 0 (a slow PC)')
+    ap.add_argument('--param-storm', type=float, default=0.0, metavar='RATE',
+                    help='parameter sets per second (alternating f_d and lambda1) for 5 s')
+    ap.add_argument('--alone-only', action='store_true', help='skip the loaded run')
+    ap.add_argument('--old-tree', metavar='DIR',
+                    help='a checkout of commit 34ec57e: its controller step timed in the '
+                    'same run, with the ratio of the tick medians')
     ap.add_argument('--no-offline', action='store_true', help='skip the offline figures')
     args = ap.parse_args(argv)
     try:
-        figures = {} if args.no_offline else offline_figures()
+        figures = {} if args.no_offline else offline_figures(args.old_tree)
         if args.ros:
             params = [a for p in [f'masses:={args.masses}', *args.param] for a in ('-p', p)]
-            figures.update(ros_loop_figures(args.ros_duration, args.load_duty, params,
-                                            freezes=args.freezes))
+            figures.update(ros_loop_figures(
+                args.ros_duration, args.load_duty, params, freezes=args.freezes,
+                freeze_ms=args.freeze_ms, one_core=args.one_core,
+                param_storm=args.param_storm, loaded=not args.alone_only))
     except KeyboardInterrupt:
         print('bench: interrupted', file=sys.stderr)
         return 0

@@ -9,36 +9,44 @@ restarts, so the reference blends from the arm's position and velocity: no effor
 ``autostart`` (default true) configures and activates at start. Parameter services work
 in every state: before configure only the model-free checks run, the rest at configure.
 
+Threads: the 1 kHz path (inputs, tick, effort) runs on the control thread of
+:class:`~.control_loop.ControlLoop`, at SCHED_FIFO ``thread_priority``; this node's own
+thread does everything else (parameter services and validation, lifecycle, diagnostics,
+telemetry, logging). A validated set reaches the loop at its next tick boundary.
+
 Topics are relative, so ``-r __ns:=/arm1`` moves them all (``/diagnostics`` stays absolute):
 subscribes ``joint_states``, ``force_torque_sensor_broadcaster/wrench``, ``~/reference``;
 publishes ``effort_controller/commands`` every tick and ``~/x``, ``~/x_desired``,
 ``~/wrench``, ``~/wrench_desired``, ``~/error``, ``~/theta_hat`` at ``telemetry_rate_hz``.
-QoS: :mod:`.qos`. ``/diagnostics`` (1 Hz) adds the input-to-command delay (joint-state
-stamp to effort published, node clock), the tick period and the commands/s.
+The names are resolved here (remappings included) and the control thread's node uses them
+as they are. QoS: :mod:`.qos`. ``/diagnostics`` (1 Hz) adds the input-to-command delay
+(joint-state stamp to effort published), the tick period, the commands/s and how long each
+kind of callback held the control thread (``loop_hold_max_ms``, ``hold_*``).
 """
 from __future__ import annotations
 
 from collections import Counter
+import gc
+import math
 import sys
 import time
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PointStamped, WrenchStamped
+from geometry_msgs.msg import PointStamped
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
-from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from .cdr import read_joint_state, read_wrench_stamped
+from .control_loop import ControlLoop, LoopSettings, schedule_process
 from .diagnostics import controller_status, EVENT_COUNTERS
-from .loop_timing import DelayStats, RateMeter
 from .model_source import expand_description, missing_description_hint
-from .node_params import check_choice, CONTROLLER_NODE_SCHEMA, SENSOR_QOS, TICK_MODES
+from .node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
+from .node_params import TICK_MODES
 from .parameters import check_values, declare_schema, ParameterBinder
 from .qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
 from .runner import EXECUTORS, print_help, run_node, wants_help
-from .telemetry import ControllerOutputs
-from ..core.loop_stats import LoopStats
+from .telemetry import ControllerOutputs, TOPIC_COMMANDS
 from ..core.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
 from ..core.params import ParameterValidationError
 from ..core.robot_model import RobotModel
@@ -50,9 +58,8 @@ TOPIC_JOINT_STATES = 'joint_states'
 TOPIC_WRENCH = 'force_torque_sensor_broadcaster/wrench'
 TOPIC_DESCRIPTION = 'robot_description'
 _OK, _FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
-WATCHDOG_PERIODS = 5  # tick_mode joint_state: the watchdog checks every 5 periods
-MARGIN_EVERY = 10  # diagnostics periods between two delay-margin evaluations
-STATS_WINDOW = 30000  # ticks (30 s at 1 kHz) behind the /diagnostics timing figures
+HOUSEKEEPING_S = 0.1  # the node drains the loop's events (logs) this often
+TELEMETRY_DRAIN_S = 0.02  # and publishes the telemetry the loop queued this often (wall)
 
 
 class ControllerNode(LifecycleNode):
@@ -67,22 +74,29 @@ class ControllerNode(LifecycleNode):
         check_choice('tick_mode', nv['tick_mode'], TICK_MODES)
         check_choice('executor', nv['executor'], EXECUTORS)
         check_choice('sensor_qos', nv['sensor_qos'], SENSOR_QOS)
+        check_cpus(nv['cpu_affinity'])
         self.binder = ParameterBinder(self, CONTROLLER_SCHEMA, self._validate,
                                       self._install, unit=('n',))
         self.node_binder = ParameterBinder(
             self, [s for s in CONTROLLER_NODE_SCHEMA if s.name == 'telemetry_rate_hz'],
             lambda v: check_values(CONTROLLER_NODE_SCHEMA, v), self._install_node_values)
         self.errors: Counter[str] = Counter()
-        self._node_clock = self.get_clock()  # the node clock (sim time with use_sim_time)
         self.state_label, self.last_error = 'unconfigured', ''
         self.runtime: ControllerRuntime | None = None
+        self.params = None  # the accepted parameter set (the loop installs it at a tick)
         self.model: RobotModel | None = None
+        self.loop: ControlLoop | None = None
         self._description_msg: str | None = None
-        self._entities: list[tuple[Callable, Any]] = []
-        self._tick_timer = self._watchdog = None
-        self._reset_timing()
+        self._reference_sub = None
+        steady = Clock(clock_type=ClockType.STEADY_TIME)  # drains in lockstep too
+        self.create_timer(TELEMETRY_DRAIN_S, self._guarded('telemetry', self._on_telemetry),
+                          clock=steady)
+        self._events: dict[str, int] = {}
+        self._scheduling_reported = False
+        self._node_scheduling: list[str] = []
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics))
+        self.create_timer(HOUSEKEEPING_S, self._guarded('housekeeping', self._housekeeping))
         if self._description_param() == '' and not nv['use_bundled_model']:
             self.create_subscription(String, TOPIC_DESCRIPTION,
                                      self._guarded('robot_description', self._on_description),
@@ -98,22 +112,16 @@ class ControllerNode(LifecycleNode):
     def _description_param(self) -> str:
         return str(self.get_parameter('robot_description').value)
 
-    def _reset_timing(self) -> None:
-        self.loop_stats, self.delay = LoopStats(STATS_WINDOW), DelayStats(STATS_WINDOW)
-        self.commands = RateMeter()
-        self._last = None
-        self._mode, self._k_tick, self._t_state, self._t_tick = None, 0, 0.0, -1.0
-        self._events: dict[str, int] = {}
-        self._k_diag, self._margin_ms = 0, float('inf')
-        self._decimation = self._decimation_for(self.node_values['telemetry_rate_hz'])
-
-    def _decimation_for(self, telemetry_rate_hz: float) -> int:
-        """Telemetry every k-th tick (0: never)."""
-        rate = float(self.get_parameter('rate_hz').value)
-        return 0 if telemetry_rate_hz <= 0.0 else max(1, round(rate / telemetry_rate_hz))
-
     def _install_node_values(self, values: dict[str, Any]) -> None:
-        self._decimation = self._decimation_for(values['telemetry_rate_hz'])
+        self.node_values['telemetry_rate_hz'] = values['telemetry_rate_hz']
+        if self.loop is not None:
+            self.loop.telemetry_every = self._decimation()
+
+    def _decimation(self) -> int:
+        """Return k: telemetry every k-th tick (0: never)."""
+        rate = self.runtime.params.runtime.rate_hz
+        telemetry = self.node_values['telemetry_rate_hz']
+        return 0 if telemetry <= 0.0 else max(1, round(rate / telemetry))
 
     def _autostart(self, raise_errors: bool) -> None:
         """Configure and activate; a configure failure raises (start-up) or is logged."""
@@ -163,10 +171,21 @@ class ControllerNode(LifecycleNode):
         return self.runtime.validate(values)
 
     def _install(self, validated: Any) -> None:
-        if self.runtime is not None and not isinstance(validated, dict):
-            self.runtime.set_params(validated)
+        """Hand an accepted set to the control thread (it takes effect at its next tick)."""
+        if self.loop is not None and not isinstance(validated, dict):
+            self.params = validated
+            self.loop.submit(validated)
 
     # ------------------------------------------------------------------ lifecycle
+    def _loop_settings(self) -> LoopSettings:
+        nv = self.node_values
+        topics = {'joint_states': self._topic(TOPIC_JOINT_STATES),
+                  'wrench': self._topic(TOPIC_WRENCH), 'commands': self._topic(TOPIC_COMMANDS)}
+        return LoopSettings(topics, sensor_in_qos(nv['sensor_qos'], nv['sensor_depth']),
+                            1.0 / self.runtime.params.runtime.rate_hz, self._tick_mode(),
+                            nv['executor'], bool(self.get_parameter('use_sim_time').value),
+                            nv['thread_priority'], nv['cpu_affinity'])
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             self.model = self._load_model()
@@ -177,36 +196,28 @@ class ControllerNode(LifecycleNode):
             self.last_error = str(exc)
             self.get_logger().error(f'configure failed: {exc}')
             return _FAIL
+        self.params = self.runtime.params
         self._ran = False  # a fresh runtime starts from the arm by itself
-        self.outputs = ControllerOutputs(self, self.model.base_link, self.model.n,
-                                         self.model.theta_names)
-        qos_in = sensor_in_qos(self.node_values['sensor_qos'], self.node_values['sensor_depth'])
-        for name, topic, kind, callback, qos, raw in (  # raw: read from the CDR bytes
-                ('joint_states', TOPIC_JOINT_STATES, JointState, self._on_joint_state, qos_in,
-                 True),
-                ('wrench', TOPIC_WRENCH, WrenchStamped, self._on_wrench, qos_in, True),
-                ('reference', '~/reference', PointStamped, self._on_reference, DEFAULT_QOS,
-                 False)):
-            sub = self.create_subscription(kind, topic, self._guarded(name, callback), qos,
-                                           raw=raw)
-            self._entities.append((self.destroy_subscription, sub))
+        self.outputs = ControllerOutputs(self, self.model.base_link, self.model.theta_names)
+        self._reference_sub = self.create_subscription(
+            PointStamped, '~/reference', self._guarded('reference', self._on_reference),
+            DEFAULT_QOS)
+        self.loop = ControlLoop(self, self.runtime, self._loop_settings())
+        self.loop.telemetry_every = self._decimation()
         self.state_label = 'inactive'
-        inputs = self._topic(TOPIC_JOINT_STATES)
         self.get_logger().info(f"configured: {self.model.n} joints, base '{self.model.base_link}'"
-                               f', inputs {inputs}, commands {self.outputs.pub_tau.topic_name}')
+                               f", inputs {self.loop.settings.topics['joint_states']}, "
+                               f"commands {self.loop.settings.topics['commands']}")
+        gc.collect()
+        gc.freeze()  # the start-up heap is never scanned again: shorter collector passes
         return _OK
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         if self._ran:  # re-activation: the next tick starts again from the arm's state
-            self.runtime.restart()
+            self.loop.restart()
         self._ran = True
-        self._reset_timing()
-        period = self._period = 1.0 / self.runtime.params.runtime.rate_hz
-        if self._tick_mode() == 'timer':
-            self._tick_timer = self.create_timer(period, self._guarded('tick', self._tick))
-        else:
-            self._watchdog = self.create_timer(WATCHDOG_PERIODS * period,
-                                               self._guarded('watchdog', self._on_watchdog))
+        self.loop.holds.reset()
+        self.loop.active = True
         self.state_label = 'active'
         self.get_logger().info('active: commanding')
         return _OK
@@ -219,21 +230,21 @@ class ControllerNode(LifecycleNode):
         return mode
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        for timer in (self._tick_timer, self._watchdog):
-            if timer is not None:
-                self.destroy_timer(timer)
-        self._tick_timer = self._watchdog = None
+        self.loop.active = False
         self.state_label = 'inactive'
         self.get_logger().info('inactive: no commands (the hardware holds)')
         return _OK
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        for destroy, entity in self._entities:
-            destroy(entity)
-        self._entities.clear()
+        if self.loop is not None:
+            self.loop.stop()
+            self.loop = None
+        if self._reference_sub is not None:
+            self.destroy_subscription(self._reference_sub)
+            self._reference_sub = None
         if self.runtime is not None:
             self.outputs.destroy()
-        self.runtime = self.model = None
+        self.runtime = self.model = self.params = None
         self.state_label = 'unconfigured'
         return _OK
 
@@ -244,6 +255,24 @@ class ControllerNode(LifecycleNode):
             self.on_cleanup(state)
         self.state_label = 'finalized'
         return _OK
+
+    def schedule_this_thread(self) -> None:
+        """
+        Schedule the node's thread and the middleware's below the control thread (``main``).
+
+        See :func:`~.control_loop.schedule_process`; a node built in another program leaves
+        that program's threads alone.
+        """
+        keep = () if self.loop is None or self.loop.native_id is None else (self.loop.native_id,)
+        self._node_scheduling = schedule_process(self.node_values['thread_priority'],
+                                                 'node thread', keep)
+
+    def destroy_node(self) -> None:
+        """Stop the control thread first (a node destroyed without a shutdown transition)."""
+        if self.loop is not None:
+            self.loop.stop()
+            self.loop = None
+        super().destroy_node()
 
     # ------------------------------------------------------------------ callbacks
     def _guarded(self, name: str, callback: Callable) -> Callable:
@@ -259,83 +288,74 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().error(f'{name} failed: {exc!r}', throttle_duration_sec=1.0)
         return run
 
-    def _now(self) -> float:
-        return self._node_clock.now().nanoseconds * 1e-9
-
-    def _on_joint_state(self, raw: bytes) -> None:
-        msg = read_joint_state(raw)
-        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()  # unstamped: reception time
-        self.runtime.on_joint_state(msg.names, msg.position, msg.velocity, t)
-        new, self._t_state = t > self._t_state, t
-        if new and self._watchdog is not None:  # tick_mode joint_state, active: a new state
-            self._tick(t)
-
-    def _on_wrench(self, raw: bytes) -> None:
-        msg = read_wrench_stamped(raw)
-        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()
-        self.runtime.on_wrench(msg.frame_id, msg.force, t)
-
     def _on_reference(self, msg: PointStamped) -> None:
         if msg.header.frame_id not in ('', self.model.base_link):
             raise InputError(f"reference frame '{msg.header.frame_id}' is not "
                              f"'{self.model.base_link}' (no TF here)")
-        self.runtime.on_reference((msg.point.x, msg.point.y, msg.point.z))
+        point = (msg.point.x, msg.point.y, msg.point.z)
+        if not all(math.isfinite(x) for x in point):
+            raise InputError(f'reference must be 3 finite numbers, got {list(point)}')
+        self.loop.hold_reference(point)
 
-    def _on_watchdog(self) -> None:
-        """
-        Tick anyway after 2 periods without a tick, or when the clock jumped back.
+    def _on_telemetry(self) -> None:
+        """Publish what the control thread queued (every k-th tick's output)."""
+        queue = self.loop.telemetry if self.loop is not None else ()
+        while queue:
+            self.outputs.publish_telemetry(*queue.popleft())
 
-        tick_mode joint_state: a stale input or a restarted clock (whose joint states the
-        runtime refuses as older until a tick restarts it) still reaches the runtime.
-        """
-        since = self._now() - self._t_tick
-        if since >= 2.0 * self._period or since < -self._period:
-            self._tick()
+    def _housekeeping(self) -> None:
+        """Log what the control thread reported: its scheduling, mode changes, errors."""
+        loop = self.loop
+        if loop is None:
+            return
+        if loop.scheduling is not None and not self._scheduling_reported:
+            self._scheduling_reported = True  # one warning: the loop's, else the node's
+            for warning in (loop.scheduling or self._node_scheduling)[:1]:
+                self.get_logger().warning(warning)
+        while loop.events:
+            self._log_event(loop.events.popleft())
 
-    def _tick(self, t_input: float = 0.0) -> None:
-        """
-        Run one tick at the node clock's time.
-
-        Never before ``t_input``, the stamp of the joint state that triggered it (with sim
-        time the /clock update may arrive after the state).
-        """
-        t_start = time.perf_counter()
-        now_ns = max(self._node_clock.now().nanoseconds, round(t_input * 1e9))
-        self._t_tick = now_ns * 1e-9
-        out = self._last = self.runtime.tick(self._t_tick)
-        if out.tau is not None:
-            self.outputs.publish_effort(out.tau)  # delay: node clock at the tick + elapsed
-            self.delay.record(self._t_tick + (time.perf_counter() - t_start) - self._t_state)
-            self.commands.count += 1
-            self._k_tick += 1
-            if self._decimation and self._k_tick % self._decimation == 0:
-                self.outputs.publish_telemetry(out, now_ns)
-        if out.mode != self._mode:  # one call site per severity: rclpy refuses to mix them
-            self._mode = out.mode
-            if out.mode in (Mode.SAFE, Mode.NO_SURFACE):
-                self.get_logger().error(f'mode {out.mode.value}: {out.status}')
+    def _log_event(self, event: tuple) -> None:
+        kind, *rest = event
+        if kind == 'mode':  # one call site per severity: rclpy refuses to mix them
+            mode, status = rest
+            if mode in (Mode.SAFE, Mode.NO_SURFACE):
+                self.get_logger().error(f'mode {mode.value}: {status}')
             else:
-                self.get_logger().info(f'mode {out.mode.value}: {out.status}')
-        self.loop_stats.record(t_start, time.perf_counter())
+                self.get_logger().info(f'mode {mode.value}: {status}')
+            return
+        if kind == 'warning':  # counted by the loop (loop.errors)
+            self.get_logger().warning(rest[0], throttle_duration_sec=1.0)
+        else:
+            self.get_logger().error(rest[0], throttle_duration_sec=1.0)
 
     def _on_diagnostics(self) -> None:
-        extra = {'lifecycle_state': self.state_label,
-                 'commands_per_s': self.commands.rate(time.monotonic()),
-                 **self.delay.summary('delay')}
+        self._housekeeping()
+        loop = self.loop
+        extra: dict[str, Any] = {'lifecycle_state': self.state_label}
+        timing: dict[str, float] = {}
         new_events: dict[str, int] = {}
+        if loop is not None:
+            extra['commands_per_s'] = loop.commands.rate(time.monotonic())
+            extra.update(loop.delay.summary('delay'))
+            timing = loop.timing.summary()
+            holds = loop.holds.summary()
+            extra['loop_hold_max_ms'] = holds.pop('all_max_ms')
+            extra['loop_hold_p999_ms'] = holds.pop('all_p999_ms')
+            extra.update({f'hold_{k}': v for k, v in holds.items() if not k.startswith('all')})
         if self.runtime is not None:
             counts = {k: self.runtime.counters[k] for k in EVENT_COUNTERS}
             new_events = {k: v - self._events.get(k, 0) for k, v in counts.items()}
             self._events = counts
-            self._k_diag += 1
-            if self._k_diag % MARGIN_EVERY == 1:  # ~20 ms of work: not every second
-                self._margin_ms = self.runtime.delay_margin() * 1e3
-            extra['delay_margin_ms'] = self._margin_ms
+            extra['delay_margin_ms'] = self.runtime.delay_margin(self.params) * 1e3
         if self.last_error and self.runtime is None:
             extra['configure_error'] = self.last_error
+        errors = dict(self.errors)
+        if loop is not None:
+            errors.update({k: v for k, v in loop.errors.items() if v})
         self.pub_diag.publish(controller_status(
             self.get_clock().now().to_msg(), self.get_name(), self.runtime, new_events,
-            self.loop_stats.summary(), self.errors, extra, self.get_fully_qualified_name()))
+            timing, errors, extra, self.get_fully_qualified_name()))
 
 
 HELP_PARAMETERS = (
@@ -347,6 +367,8 @@ HELP_PARAMETERS = (
     ('rate_hz', 'control rate (default 1000)'),
     ('telemetry_rate_hz', 'rate of ~/x ... ~/theta_hat (default 100)'),
     ('tick_mode', "'auto' (default: joint_state, timer with sim time), 'timer', 'joint_state'"),
+    ('thread_priority', 'SCHED_FIFO priority of the control thread (default 50; 0: none)'),
+    ('cpu_affinity', 'CPUs of the control thread (default []: any)'),
     ('autostart', 'configure + activate at start (default true)'),
     ('executor', "'events' (default) or 'single_threaded'"),
     ('sensor_qos', "'best_effort' (default) or 'reliable' inputs"),
@@ -360,7 +382,12 @@ def main(args: list[str] | None = None) -> int:
                    "'hybrid_force_controller'): joint_states + wrench in, efforts out.",
                    HELP_PARAMETERS)
         return 0
-    return run_node(ControllerNode, 'hybrid_force_controller', args)
+
+    def make_node() -> ControllerNode:
+        node = ControllerNode()
+        node.schedule_this_thread()
+        return node
+    return run_node(make_node, 'hybrid_force_controller', args)
 
 
 if __name__ == '__main__':

@@ -176,8 +176,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if code == 0:
         _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
                   friction=mu, tool_mass=tool_mass)
-        print(f'bag:     {bag}\nfigures: {report_dir}/fig3_position.png, fig4_force.png, '
-              f'fig5_parameters.png\nmetrics: {report_dir}/metrics.json')
+        figures = ', '.join(p.name for p in sorted(report_dir.glob('fig*.png')))
+        print(f'bag:     {bag}\nfigures: {report_dir}/{figures}\n'
+              f'metrics: {report_dir}/metrics.json')
     return code
 
 

@@ -7,16 +7,26 @@ ranges and appear in ``ros2 param dump``.
 """
 from __future__ import annotations
 
+import os
+
 from ..core.params import ParamSpec as _S
 
-__all__ = ['CONTROLLER_NODE_SCHEMA', 'EXECUTOR_SPEC', 'TICK_MODES', 'SENSOR_QOS',
-           'check_choice']
+__all__ = ['CONTROLLER_NODE_SCHEMA', 'CPU_AFFINITY_SPEC', 'EXECUTOR_SPEC', 'SENSOR_QOS',
+           'THREAD_PRIORITY_SPEC', 'TICK_MODES', 'check_choice', 'check_cpus']
 
 TICK_MODES = ('auto', 'timer', 'joint_state')
 SENSOR_QOS = ('best_effort', 'reliable')
 EXECUTOR_SPEC = _S('executor', 'string', 'events',
                    "Executor: 'events' (rclpy.experimental.EventsExecutor, least CPU) or "
                    "'single_threaded'.", read_only=True)
+THREAD_PRIORITY_SPEC = _S(
+    'thread_priority', 'integer', 50,
+    'SCHED_FIFO priority of the control thread (as controller_manager sets it: 50); 0 leaves '
+    'the scheduler alone. Refused by the OS (no rtprio limit): one warning, and it runs on.',
+    0, 99, read_only=True)
+CPU_AFFINITY_SPEC = _S(
+    'cpu_affinity', 'integer_array', [],
+    'CPUs the control thread may run on ([] = any).', read_only=True)
 
 CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
     _S('telemetry_rate_hz', 'double', 100.0,
@@ -42,6 +52,8 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
     _S('sensor_depth', 'integer', 1,
        'Queue depth of the joint_states and wrench subscriptions (1: only the newest sample '
        'is kept; more keeps every sample of a burst).', 1, 1000, read_only=True),
+    THREAD_PRIORITY_SPEC,
+    CPU_AFFINITY_SPEC,
 )
 
 
@@ -50,3 +62,13 @@ def check_choice(name: str, value: str, choices: tuple[str, ...]) -> str:
     if value not in choices:
         raise ValueError(f"{name} must be one of {list(choices)}, got '{value}'")
     return value
+
+
+def check_cpus(cpus: list[int]) -> list[int]:
+    """``cpus`` if every entry is a CPU of this machine; else a ValueError naming them."""
+    available = sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else []
+    bad = [c for c in cpus if not isinstance(c, int) or isinstance(c, bool) or (
+        available and c not in available)]
+    if bad:
+        raise ValueError(f'cpu_affinity must list CPUs of this machine {available}, got {bad}')
+    return list(cpus)

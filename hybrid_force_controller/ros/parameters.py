@@ -29,7 +29,8 @@ __all__ = ['ParameterBinder', 'check_values', 'declare_schema', 'descriptor_for'
 T = TypeVar('T')
 _Type = Parameter.Type
 _ROS_TYPE = {'double': _Type.DOUBLE, 'double_array': _Type.DOUBLE_ARRAY, 'integer': _Type.INTEGER,
-             'string': _Type.STRING, 'string_array': _Type.STRING_ARRAY, 'bool': _Type.BOOL}
+             'string': _Type.STRING, 'string_array': _Type.STRING_ARRAY, 'bool': _Type.BOOL,
+             'integer_array': _Type.INTEGER_ARRAY}
 
 
 def descriptor_for(spec: ParamSpec) -> ParameterDescriptor:
@@ -40,6 +41,9 @@ def descriptor_for(spec: ParamSpec) -> ParameterDescriptor:
         d.dynamic_typing = True
         d.additional_constraints = f'{spec.kind} (integers are converted)' + (
             ', > 0' if spec.positive else '')
+    elif spec.kind == 'integer_array':  # [] has no type of its own (rclpy: a byte array)
+        d.dynamic_typing = True
+        d.additional_constraints = 'integer_array'
     else:
         d.type = _ROS_TYPE[spec.kind].value
     bounded = spec.lo is not None and spec.hi is not None
@@ -73,7 +77,10 @@ def normalise_value(spec: ParamSpec, value: Any, unit: Iterable[str] = ()) -> An
         if spec.name in unit and len(out) == 3 and math.isfinite(norm) and norm > 1e-9:
             out = [x / norm for x in out]
         return out
-    return list(value) if spec.kind == 'string_array' else value
+    if spec.kind in ('string_array', 'integer_array') and isinstance(
+            value, (list, tuple, array.array)):
+        return list(value)
+    return value
 
 
 def _refuse_bools(spec: ParamSpec, value: Any) -> None:
@@ -86,7 +93,7 @@ def _refuse_bools(spec: ParamSpec, value: Any) -> None:
 
 def _unset_means_default(spec: ParamSpec, value: Any) -> Any:
     """``[]`` from a params file or ``-p NAME:=[]`` arrives untyped (None): the default."""
-    if value is None and spec.kind in ('double_array', 'string_array'):
+    if value is None and spec.kind in ('double_array', 'string_array', 'integer_array'):
         return list(spec.default)
     return value
 
@@ -113,6 +120,10 @@ def check_values(specs: Sequence[ParamSpec], values: dict[str, Any]) -> dict[str
                 _is_number(x) and math.isfinite(x) for x in value):
             raise ParameterValidationError(f'{spec.name} must be an array of finite numbers, '
                                            f'got {value!r}')
+    if 'n' in values:
+        n = values['n']
+        if len(n) != 3 or not math.sqrt(sum(x * x for x in n)) > 1e-9:
+            raise ParameterValidationError(f'n must be 3 numbers, not all zero, got {list(n)}')
     if {'lambda1', 'lambda2', 'k_max'} <= set(values):
         check_stability(values['lambda1'], values['lambda2'], values['k_max'])
     return values

@@ -1,11 +1,12 @@
 """
-The controller's outgoing messages, built once and refilled in place every tick.
+The controller's outgoing messages, built once and refilled in place.
 
-:class:`ControllerOutputs` owns the effort publisher (every tick) and the telemetry
-publishers (``~/x``, ``~/x_desired``, ``~/wrench``, ``~/wrench_desired``, ``~/error``,
-``~/theta_hat``, ``~/stiffness_estimate``; every ``decimation``-th tick). The effort
-and theta_hat data live in ``array.array('d')`` buffers that numpy views write into, so
-a tick allocates no message.
+:class:`EffortOutput` is the effort publisher of the control thread (every tick);
+:class:`ControllerOutputs` the telemetry publishers of the controller node (``~/x``,
+``~/x_desired``, ``~/wrench``, ``~/wrench_desired``, ``~/error``, ``~/theta_hat``,
+``~/stiffness_estimate``; at ``telemetry_rate_hz``, from the latest tick, on the node's
+thread). The effort and theta_hat data live in ``array.array('d')`` buffers that numpy
+views write into, so a tick allocates no message.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiA
 
 from .qos import COMMAND_QOS, DEFAULT_QOS
 
-__all__ = ['ControllerOutputs', 'TOPIC_COMMANDS']
+__all__ = ['ControllerOutputs', 'EffortOutput', 'TOPIC_COMMANDS']
 
 TOPIC_COMMANDS = 'effort_controller/commands'
 
@@ -32,14 +33,24 @@ def _buffer_msg(size: int, layout: MultiArrayLayout | None = None
     return msg, np.frombuffer(msg.data, dtype=np.float64)
 
 
-class ControllerOutputs:
-    """Publishers and reusable messages of one controller node."""
+class EffortOutput:
+    """The effort publisher and its reused message (the control thread's only output)."""
 
-    def __init__(self, node: Any, base_frame: str, n_joints: int,
-                 theta_names: Sequence[str]) -> None:
-        self.node = node
-        self.pub_tau = node.create_publisher(Float64MultiArray, TOPIC_COMMANDS, COMMAND_QOS)
+    def __init__(self, node: Any, topic: str, n_joints: int) -> None:
+        self.pub_tau = node.create_publisher(Float64MultiArray, topic, COMMAND_QOS)
         self.tau_msg, self.tau_view = _buffer_msg(n_joints)
+
+    def publish(self, tau: np.ndarray) -> None:
+        """Publish the joint efforts (command order)."""
+        self.tau_view[:] = tau
+        self.pub_tau.publish(self.tau_msg)
+
+
+class ControllerOutputs:
+    """Telemetry publishers and reusable messages of one controller node."""
+
+    def __init__(self, node: Any, base_frame: str, theta_names: Sequence[str]) -> None:
+        self.node = node
         p = len(theta_names)
         layout = MultiArrayLayout(dim=[MultiArrayDimension(label=','.join(theta_names),
                                                            size=p, stride=p)])
@@ -62,11 +73,6 @@ class ControllerOutputs:
         self.telemetry.append((node.create_publisher(Float64, '~/stiffness_estimate',
                                                      DEFAULT_QOS), self.k_msg))
 
-    def publish_effort(self, tau: np.ndarray) -> None:
-        """Publish the joint efforts (command order)."""
-        self.tau_view[:] = tau
-        self.pub_tau.publish(self.tau_msg)
-
     def publish_telemetry(self, out: Any, stamp_ns: int) -> None:
         """Publish the tick's positions, forces, error and theta_hat (base frame)."""
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
@@ -81,5 +87,5 @@ class ControllerOutputs:
 
     def destroy(self) -> None:
         """Destroy every publisher (lifecycle cleanup)."""
-        for publisher in [self.pub_tau, *(p for p, _ in self.telemetry)]:
+        for publisher, _ in self.telemetry:
             self.node.destroy_publisher(publisher)

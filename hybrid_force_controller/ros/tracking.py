@@ -28,7 +28,8 @@ class TrackingMeter:
 
     def __init__(self, node: Any, n_W: np.ndarray, f_d: float) -> None:
         from geometry_msgs.msg import PointStamped, WrenchStamped
-        self.n_W, self.f_d = np.asarray(n_W, dtype=float), f_d
+        self.n_W = np.asarray(n_W, dtype=float)
+        self.f_d_steps = [(-math.inf, f_d)]  # (from stamp, f_d): a parameter storm changes it
         self.lock = threading.Lock()
         self.x: dict[float, np.ndarray] = {}
         self.x_d: dict[float, np.ndarray] = {}
@@ -48,6 +49,27 @@ class TrackingMeter:
         f = msg.wrench.force
         with self.lock:
             self.f.append((_t(msg.header.stamp), float(self.n_W @ [f.x, f.y, f.z])))
+
+    def set_f_d(self, t: float, f_d: float) -> None:
+        """f_d is ``f_d`` from stamp ``t`` on."""
+        with self.lock:
+            self.f_d_steps.append((t, f_d))
+
+    def _f_d(self, t: np.ndarray) -> np.ndarray:
+        starts, values = zip(*self.f_d_steps)
+        return np.asarray(values)[np.searchsorted(np.asarray(starts), t, side='right') - 1]
+
+    def settle_time(self, t0: float, f_d: float, tol: float = 0.05) -> float:
+        """Time after ``t0`` from which the force stays within ``tol`` of ``f_d``, s (NaN)."""
+        with self.lock:
+            forces = [(t, f) for t, f in self.f if t >= t0]
+        if not forces:
+            return math.nan
+        t, f = np.array(forces).T
+        outside = np.flatnonzero(np.abs(f - f_d) > tol)
+        if len(outside) == 0:
+            return 0.0
+        return math.nan if outside[-1] == len(t) - 1 else float(t[outside[-1] + 1] - t0)
 
     @property
     def latest(self) -> float:
@@ -69,7 +91,7 @@ class TrackingMeter:
             out['rms_position_error_m'] = float(np.sqrt(np.mean(np.sum(np.square(e_x), 1))))
         if len(forces) > 1:
             t, f = np.array(forces).T
-            out['rms_force_error_n'] = float(np.sqrt(np.mean((f - self.f_d) ** 2)))
+            out['rms_force_error_n'] = float(np.sqrt(np.mean((f - self._f_d(t)) ** 2)))
             lost = np.array([not in_contact(v) for v in f[:-1]])
             out['contact_lost_s'] = float(np.sum(np.diff(t)[lost]))
             out['max_force_n'] = float(f.max())

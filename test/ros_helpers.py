@@ -39,7 +39,7 @@ _DOMAIN_OFFSETS = {
     'any_arm': 4, 'colcon_build': 5, 'demo': 6, 'recorder': 7, 'realtime': 8,
     'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
-    'discipline': 18, 'discipline_refused': 19,
+    'discipline': 18, 'discipline_refused': 19, 'mujoco_ros': 30,
 }
 
 

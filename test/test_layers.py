@@ -4,7 +4,10 @@ The layer rule, derived from the tree: core <- tools <- ros (and sim_node).
 * ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself;
 * ``tools/`` imports the standard library, numpy, rosbags, matplotlib, ``core`` and ``tools``
   (never rclpy or a ROS message package);
-* only ``ros/`` and ``sim_node/`` import rclpy.
+* only ``ros/`` and ``sim_node/`` import rclpy;
+* only ``sim_node/mujoco_scene.py`` and ``sim_node/mujoco_plant.py`` import ``mujoco`` (the
+  sim's ``physics:=mujoco``; sim_node/plants.py imports the plant lazily, so the default sim
+  and every other module never load it); no tools/ or ros/ module does.
 
 Every import statement of every module is checked (also those inside functions), and a
 fresh interpreter that imports every core and tool module must not have loaded rclpy.
@@ -80,16 +83,35 @@ def test_rclpy_is_imported_only_by_adapters():
     assert all(u.startswith(('hybrid_force_controller/ros', 'sim_node/')) for u in users), users
 
 
+MUJOCO_USERS = {'sim_node/mujoco_scene.py', 'sim_node/mujoco_plant.py'}
+
+
+def test_mujoco_is_imported_only_by_the_mujoco_plant():
+    users = {str(p.relative_to(ROOT)) for p in [*PKG.rglob('*.py'), *(ROOT / 'sim_node').rglob(
+        '*.py')] if ('ext', 'mujoco') in _imports(p, p.parent.name)}
+    assert users == MUJOCO_USERS
+
+
+def test_the_default_sim_does_not_load_mujoco():
+    code = ('import sys, sim_node.sim_node, sim_node.plants; '
+            "print('mujoco' in sys.modules)")
+    proc = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == 'False'
+
+
 _SCRIPT = """
 import importlib, json, sys
 for name in json.loads(sys.argv[1]):
     importlib.import_module(name)
-print(json.dumps(sorted(m for m in ('rclpy', 'rosbags', 'matplotlib') if m in sys.modules)))
+print(json.dumps(sorted(m for m in ('rclpy', 'rosbags', 'matplotlib', 'mujoco')
+                        if m in sys.modules)))
 """
 
 
-@pytest.mark.parametrize('layer, forbidden', [('core', ['matplotlib', 'rclpy', 'rosbags']),
-                                              ('tools', ['rclpy'])])
+@pytest.mark.parametrize('layer, forbidden', [
+    ('core', ['matplotlib', 'mujoco', 'rclpy', 'rosbags']), ('tools', ['mujoco', 'rclpy'])])
 def test_importing_a_layer_loads_nothing_forbidden(layer, forbidden):
     """A fresh interpreter imports every module of the layer (matplotlib is imported lazily)."""
     names = ['hybrid_force_controller.' + '.'.join(p.relative_to(PKG).with_suffix('').parts)

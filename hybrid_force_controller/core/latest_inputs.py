@@ -3,9 +3,9 @@ The runtime's latest inputs: checked samples, their staleness, the filtered forc
 
 :class:`LatestInputs` keeps the newest joint state and wrench that passed the checks of
 inputs.py, computes the kinematics once per joint state, rotates each new wrench into the base
-frame and low-pass filters it over the wrench stamps, and says when the inputs are too old to act
-on. Rejected samples are counted in the caller's counters and raise the typed error. Times are
-seconds on the caller's clock.
+frame (less the tool's weight, ``tool_mass``: tool_gravity.py) and low-pass filters it over the
+wrench stamps, and says when the inputs are too old to act on. Rejected samples are counted in
+the caller's counters and raise the typed error. Times are seconds on the caller's clock.
 """
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, Wre
                      WrenchSample)
 from .params import RuntimeConfig
 from .robot_model import RobotModel, TaskKinematics
+from .tool_gravity import tool_weight_W
 
 __all__ = ['LatestInputs']
 
@@ -45,6 +46,9 @@ class LatestInputs:
         self._joints = JointInput(self.model.joint_names, rt.joints)
         self.gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
         self._period = 1.0 / rt.rate_hz
+        R_W_root = self.model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[1]
+        g_W = R_W_root @ self.model.model.gravity.linear
+        self._weight_W = tool_weight_W(rt.tool_mass, g_W)  # None: no tool to compensate
         if rt.force_filter_hz != self.filter.cutoff_hz:
             value, ready = self.filter.value.copy(), self.filter.ready
             self.filter = LowPassFilter(rt.force_filter_hz)
@@ -98,6 +102,8 @@ class LatestInputs:
                  if frame == self.model.end_effector_link
                  else self.model.frame_rotation(self.state.q, frame))
             f_W = -w.F_S if R is None else f_W_from_sensor_wrench(R, w.F_S)
+            if self._weight_W is not None:  # the sensor feels the tool's weight: remove it
+                f_W = f_W + self._weight_W
             gap = w.t - self._wrench_prev_t
             self.filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else self._period)
             self._new_wrench = False

@@ -6,7 +6,7 @@ here); the ROS node declares them from :data:`CONTROLLER_SCHEMA` and ``config/*.
 overrides values. :func:`build_params` validates a full set once and freezes it into
 :class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
 (26), (29) of [1]), the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
-filter, reference, timeouts, approach, sensor plausibility) and the online stiffness
+filter, reference, timeouts, approach, sensor plausibility, tool mass) and the online stiffness
 estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``). Pure Python + numpy.
 """
 from __future__ import annotations
@@ -75,6 +75,8 @@ class RuntimeConfig:
     wrench_limit: float
     wrench_rate_limit: float
     reject_frozen_wrench: bool
+    tool_mass: float
+    tool_com: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -244,7 +246,8 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
         min_delay_margin=s['min_delay_margin'], approach_speed=s['approach_speed'],
         approach_limit=s['approach_limit'],
         wrench_limit=s['wrench_limit'], wrench_rate_limit=s['wrench_rate_limit'],
-        reject_frozen_wrench=s['reject_frozen_wrench'])
+        reject_frozen_wrench=s['reject_frozen_wrench'], tool_mass=s['tool_mass'],
+        tool_com=_array('tool_com', v['tool_com'], (0, 3)).reshape(-1, 3).sum(0))  # []: 0
 
 
 def build_params(model: Any, values: Mapping[str, Any] | None = None) -> ControllerParams:

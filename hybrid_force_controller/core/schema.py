@@ -114,6 +114,12 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('reject_frozen_wrench', 'bool', True,
        'Treat bit-identical force readings as stale (a frozen sensor leads to safe mode '
        'after state_timeout).'),
+    _S('tool_mass', 'double', 0.0,
+       'Mass of the tool the wrist sensor carries, kg: its weight is subtracted from the '
+       'reading before the law (tool_gravity.py; 0: none).', 0.0, 1e3),
+    _S('tool_com', 'double_array', [],
+       "The tool's centre of mass in the sensor frame, m (empty: the origin); it moves only "
+       'the torque of the weight, which the law does not use.'),
     # the online stiffness estimate (stiffness.py, docs/design.md): symbols (S0)-(S8)
     _stf('stiffness_estimation', 'bool', True,
          'Use the online stiffness estimate as k_s of eq. (11), with lambda2 = lambda2 '

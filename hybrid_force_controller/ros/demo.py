@@ -10,6 +10,13 @@ By default both nodes run in real time against the wall clock at 1 kHz, as on a 
 ``--lockstep`` makes the sim own the time (it publishes ``/clock``, the controller uses sim
 time and the recorder sim time), so the run is the same on a loaded machine. The report's
 ``metrics.json`` records ``"mode": "real_time"`` or ``"lockstep"``.
+
+``--physics mujoco`` runs the sim on MuJoCo (config/mujoco.yaml: a sphere tool and a wrist
+force/torque sensor; ``--friction MU`` on the surface, ``--tool-mass KG`` the tool's mass, which
+the sensor feels and the controller's ``tool_mass`` subtracts); ``--arm panda`` runs the bundled
+Panda pressing 5 N on a table along a 10 cm line, its sim masses +/-30 % off
+(config/panda_params.yaml + config/panda_table.yaml; on MuJoCo friction 0.3 and a 0.1 kg tool
+by default). metrics.json also records ``arm``, ``physics``, ``friction`` and ``tool_mass``.
 """
 from __future__ import annotations
 
@@ -26,6 +33,10 @@ from typing import Sequence
 
 from .launch import find_config, PKG
 
+#: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
+#: Panda's wrist sensor, which the controller compensates; the paper's arm keeps a massless tip
+TOOL_MASS = {'paper': 0.0, 'panda': 0.1}
+
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog='demo', description=__doc__.splitlines()[0])
@@ -34,15 +45,40 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--lockstep', action='store_true',
                     help='deterministic: the sim owns the time (/clock), one step per command')
     ap.add_argument('--timeout', type=float, default=900.0, help='wall-time limit, s')
+    ap.add_argument('--arm', choices=('paper', 'panda'), default='paper',
+                    help="the paper's 2-link arm (default) or the Panda on a table")
+    ap.add_argument('--physics', choices=('paper', 'mujoco'), default='paper',
+                    help="the sim's physics (mujoco: MuJoCo, sphere tool, wrist sensor)")
+    ap.add_argument('--friction', type=float, default=None,
+                    help='mujoco: friction mu of the surface (default 0; the Panda 0.3)')
+    ap.add_argument('--tool-mass', type=float, default=None,
+                    help="mujoco: mass of the tool, kg, in the sim and the controller's "
+                    'tool_mass (default 0; the Panda 0.1)')
     return ap
 
 
-def _start_nodes(params: Path, lockstep: bool, env: dict[str, str],
+def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:
+    """``--ros-args`` of both nodes for --arm/--physics/--friction/--tool-mass, mu, the mass."""
+    files = ['params.yaml'] if args.arm == 'paper' else ['panda_params.yaml', 'panda_table.yaml']
+    mu, mass, tool = 0.0, 0.0, []
+    if args.physics == 'mujoco':
+        files.append('mujoco.yaml')
+        mu = args.friction if args.friction is not None else 0.3 if args.arm == 'panda' else 0.0
+        mass = TOOL_MASS[args.arm] if args.tool_mass is None else args.tool_mass
+        tool = ['-p', f'tool_mass:={float(mass)!r}']  # the same name in both nodes
+    out = [a for name in files for a in ('--params-file', str(find_config(name)))] + tool
+    if args.arm == 'panda':
+        from ..core.arm7 import panda_urdf_path
+        out += ['-p', f'robot_description:={panda_urdf_path()}']
+    return out, mu, mass
+
+
+def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, str],
                  log_dir: Path) -> list[subprocess.Popen]:
     """Start sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
-    common = ['--ros-args', '--params-file', str(params)]
+    common = ['--ros-args', *ros_args]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
-           '-p', f'lockstep:={str(lockstep).lower()}']
+           '-p', f'lockstep:={str(lockstep).lower()}', '-p', f'surface_friction:={mu!r}']
     ctrl = [sys.executable, '-m', f'{PKG}.ros.controller_node', *common,
             '-p', f'use_sim_time:={str(lockstep).lower()}']
     procs = []
@@ -89,10 +125,11 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
         rclpy.shutdown()
 
 
-def _add_mode(metrics_path: Path, mode: str) -> None:
-    """Record how the run was timed in the report's metrics.json."""
+def _add_mode(metrics_path: Path, mode: str, **setup: object) -> None:
+    """Record how the run was timed (and the arm, physics, friction) in metrics.json."""
     metrics = json.loads(metrics_path.read_text())
     metrics['mode'] = mode
+    metrics.update(setup)
     metrics_path.write_text(json.dumps(metrics, indent=2) + '\n')
 
 
@@ -102,15 +139,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.duration < 6.0:
         print('error: --duration must be >= 6 s (metrics start at 5 s)', file=sys.stderr)
         return 2
+    for name, value in (('friction', args.friction), ('tool-mass', args.tool_mass)):
+        if value is not None and (args.physics != 'mujoco' or value < 0.0):
+            print(f'error: --{name} needs --physics mujoco and a value >= 0', file=sys.stderr)
+            return 2
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', '37')
     bag, report_dir = args.out / 'bag', args.out / 'report'
     shutil.rmtree(bag, ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
     mode = 'lockstep' if args.lockstep else 'real_time'
-    print(f'demo: {args.duration:.0f} s, {mode.replace("_", " ")}, '
-          f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
-    procs = _start_nodes(find_config(), args.lockstep, dict(os.environ), args.out)
+    print(f'demo: {args.arm} arm on {args.physics} physics, {args.duration:.0f} s, '
+          f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
+    ros_args, mu, tool_mass = _scenario_args(args)
+    procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out)
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout)
     except (RuntimeError, TimeoutError) as exc:
@@ -132,7 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print('report:')
     code = report_main([str(bag), '--out', str(report_dir)])
     if code == 0:
-        _add_mode(report_dir / 'metrics.json', mode)
+        _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
+                  friction=mu, tool_mass=tool_mass)
         figures = ', '.join(p.name for p in sorted(report_dir.glob('fig*.png')))
         print(f'bag:     {bag}\nfigures: {report_dir}/{figures}\n'
               f'metrics: {report_dir}/metrics.json')

@@ -1,0 +1,49 @@
+"""
+``demo --physics mujoco`` / ``--arm panda``: the node arguments it builds (no processes started).
+
+The MuJoCo runs add config/mujoco.yaml and one ``tool_mass`` for both nodes; the Panda gets its
+parameter files and bundled URDF; options that need MuJoCo are refused without it.
+"""
+from __future__ import annotations
+
+import argparse
+
+from hybrid_force_controller.core.arm7 import panda_urdf_path
+from hybrid_force_controller.ros.demo import _scenario_args, main
+import pytest
+
+
+def _args(**kwargs):
+    base = {'arm': 'paper', 'physics': 'paper', 'friction': None, 'tool_mass': None}
+    return argparse.Namespace(**{**base, **kwargs})
+
+
+def _files(ros_args):
+    return [ros_args[i + 1].rsplit('/', 1)[-1] for i, a in enumerate(ros_args)
+            if a == '--params-file']
+
+
+def test_paper_physics_is_todays_demo():
+    ros_args, mu, mass = _scenario_args(_args())
+    assert _files(ros_args) == ['params.yaml'] and len(ros_args) == 2
+    assert (mu, mass) == (0.0, 0.0)
+
+
+def test_mujoco_on_the_paper_arm_adds_the_overlay_and_a_massless_tool():
+    ros_args, mu, mass = _scenario_args(_args(physics='mujoco', friction=0.3))
+    assert _files(ros_args) == ['params.yaml', 'mujoco.yaml']
+    assert ros_args[-2:] == ['-p', 'tool_mass:=0.0'] and (mu, mass) == (0.3, 0.0)
+
+
+def test_the_panda_on_mujoco_has_its_table_friction_and_tool():
+    ros_args, mu, mass = _scenario_args(_args(arm='panda', physics='mujoco'))
+    assert _files(ros_args) == ['panda_params.yaml', 'panda_table.yaml', 'mujoco.yaml']
+    assert f'robot_description:={panda_urdf_path()}' in ros_args
+    assert 'tool_mass:=0.1' in ros_args and (mu, mass) == (0.3, 0.1)
+
+
+@pytest.mark.parametrize('argv', [['--friction', '0.3'], ['--tool-mass', '0.1'],
+                                  ['--physics', 'mujoco', '--friction', '-1']])
+def test_mujoco_options_need_mujoco(argv, capsys):
+    assert main([*argv, '--out', '/nonexistent/never']) == 2
+    assert 'needs --physics mujoco' in capsys.readouterr().err

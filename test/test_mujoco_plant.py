@@ -1,0 +1,174 @@
+"""
+The MuJoCo plant (``physics:=mujoco``) offline: fidelity, contact, sensor, friction, the engine.
+
+* MuJoCo's mass matrix and bias forces match pinocchio's on the same URDF at random states,
+  for the paper's arm (point masses) and the Panda (fingers welded);
+* a static press at 2, 5 and 20 N gives the stiffness parameter (N/m) within 2 %;
+* the wrist sensor reads the tool's weight out of contact, and in contact the true contact
+  force plus the weight, in the end-effector frame;
+* with friction mu the tool sticks under a side push below mu f_n and slides above it;
+* the offline engine runs the controller against it (the plant interface of ArmSimulator);
+* bad MuJoCo settings are refused with a typed error.
+"""
+from __future__ import annotations
+
+from hybrid_force_controller.core.arm7 import panda_model, PANDA_Q0, panda_urdf_path
+from hybrid_force_controller.core.engine import run_loop
+from hybrid_force_controller.core.environment import (ElasticSurface, sensor_wrench_from_f_W,
+                                                      SurfaceError)
+from hybrid_force_controller.core.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
+from hybrid_force_controller.core.runtime import ControllerRuntime
+from hybrid_force_controller.core.timing import TimingModel
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+from sim_node.mujoco_params import check_physics, mujoco_options, MujocoOptions
+from sim_node.mujoco_plant import MujocoPlant
+
+R_TOOL = 0.01
+
+
+def _arm(name):
+    """(model, urdf, q0, n_W into the surface) of the paper's arm or the Panda on a table."""
+    if name == 'paper':
+        return (RobotModel.from_urdf(), default_urdf_path(), np.array([0.657, 0.913]),
+                np.array([0.0, -1.0, 0.0]))
+    return panda_model(), panda_urdf_path(), np.array(PANDA_Q0), np.array([0.0, 0.0, -1.0])
+
+
+def _plant(name, k=1700.0, **opts):
+    model, urdf, q0, n_W = _arm(name)
+    p0 = model.kinematics(q0, np.zeros(model.n)).p_W
+    surface = ElasticSurface.create(k, p0 + R_TOOL * n_W, n_W)  # touching the sphere
+    plant = MujocoPlant(model, urdf, MujocoOptions(tool_radius=R_TOOL, **opts), surface, q0)
+    return model, plant, n_W
+
+
+def _press(model, plant, f_W, steps=3000):
+    """Hold the tool pressing with f_W (gravity compensated, damped) until it settles."""
+    meas = plant.measure()
+    axes = list(model.task_axes)
+    for _ in range(steps):
+        kin = model.kinematics(meas.q, meas.qdot)
+        J = np.zeros((3, model.n))
+        J[axes] = kin.J_ee
+        g = pin.rnea(model.model, model.data, meas.q, np.zeros(model.n), np.zeros(model.n))
+        tau = g + J.T @ (f_W - 30.0 * (J @ meas.qdot)) - 2.0 * meas.qdot
+        meas = plant.step(tau, 1e-3)
+    return meas
+
+
+@pytest.mark.parametrize('name', ['paper', 'panda'])
+def test_mass_matrix_and_bias_forces_match_pinocchio(name):
+    model, plant, _ = _plant(name)
+    m, d, sc = plant.m, plant.d, plant.scene
+    rng = np.random.default_rng(7)
+    worst_M = worst_b = 0.0
+    for _ in range(20):
+        q, v = rng.uniform(-2.0, 2.0, model.n), rng.normal(0.0, 1.0, model.n)
+        d.qpos[sc.qpos], d.qvel[sc.dof] = q, v
+        mujoco.mj_forward(m, d)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, M)
+        M_pin = pin.crba(model.model, model.data, q)
+        M_pin = np.triu(M_pin) + np.triu(M_pin, 1).T
+        b_pin = pin.rnea(model.model, model.data, q, v, np.zeros(model.n))
+        worst_M = max(worst_M, np.abs(M[np.ix_(sc.dof, sc.dof)] - M_pin).max())
+        worst_b = max(worst_b, np.abs(d.qfrc_bias[sc.dof] - b_pin).max())
+    print(f'{name}: max |M - M_pin| = {worst_M:.2e}, max |b - b_pin| = {worst_b:.2e}')
+    assert worst_M <= 1e-9 and worst_b <= 1e-9, (worst_M, worst_b)
+
+
+@pytest.mark.parametrize('name, k', [('paper', 1700.0), ('panda', 3000.0)])
+def test_static_press_gives_the_stiffness_parameter(name, k):
+    model, plant, n_W = _plant(name, k, surface_damping=20.0)
+    for f_n in (2.0, 5.0, 20.0):
+        meas = _press(model, plant, f_n * n_W)
+        depth = float(n_W @ (meas.p_W - plant.surface.x0_W)) + R_TOOL
+        f_true_n = float(n_W @ meas.f_true_W)
+        print(f'{name}: {f_n:g} N: k = {f_true_n / depth:.2f} N/m (parameter {k:g})')
+        assert f_true_n == pytest.approx(f_n, rel=1e-3)
+        assert f_true_n / depth == pytest.approx(k, rel=0.02)
+
+
+def test_sensor_reads_the_tool_weight_and_the_contact_force():
+    model, plant, n_W = _plant('panda', 3000.0, tool_mass=0.25)
+    g_W = model.model.gravity.linear
+    surface = plant.surface
+    plant.surface = None  # out of contact, brakes on: the sensor feels the weight only
+    meas = plant.hold(1e-3)
+    F_S = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
+    np.testing.assert_allclose(F_S, 0.25 * meas.R_W_ee.T @ g_W, atol=1e-9)
+    assert np.all(meas.f_true_W == 0.0)
+    plant.surface = surface
+    meas = _press(model, plant, 5.0 * n_W)  # at rest, pressing 5 N (the weight included)
+    F_S = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
+    # the reading is the environment's force on the tool plus the weight, tool frame
+    np.testing.assert_allclose(F_S, meas.R_W_ee.T @ (-meas.f_true_W + 0.25 * g_W), atol=1e-6)
+    assert float(n_W @ meas.f_true_W) == pytest.approx(5.0 + 0.25 * 9.81, rel=1e-3)
+
+
+def test_friction_holds_below_mu_fn_and_slides_at_it():
+    # the planar arm: its tool cannot roll (a 7-DOF arm with a free orientation can)
+    model, plant, n_W = _plant('paper', 1700.0, surface_friction=0.3)
+    t_W = np.array([1.0, 0.0, 0.0])
+    _press(model, plant, 5.0 * n_W)  # mu f_n = 1.5 N
+
+    def push(f_t):
+        _press(model, plant, 5.0 * n_W + f_t * t_W, steps=500)
+        x0 = plant.measure().p_W
+        meas = _press(model, plant, 5.0 * n_W + f_t * t_W, steps=500)
+        return float(t_W @ (meas.p_W - x0)) / 0.5, meas  # m/s over the last 0.5 s
+    v_held, _ = push(1.0)
+    v_slid, meas = push(2.0)
+    f_n = float(n_W @ meas.f_true_W)
+    print('held', v_held, 'slid', v_slid)
+    assert abs(v_held) <= 2e-3, v_held  # at most a slow creep (MuJoCo's friction is soft)
+    assert v_slid > 10e-3, v_slid
+    assert abs(t_W @ meas.f_true_W) == pytest.approx(0.3 * f_n, rel=0.03)
+
+
+def test_the_engine_runs_the_controller_against_mujoco_offline():
+    model, plant, n_W = _plant('paper')
+    runtime = ControllerRuntime(model, build_params(model))
+    log = run_loop(runtime, plant, 8.0, TimingModel.lockstep(1))
+    after = log.t >= 5.0
+    P_t = np.eye(3) - np.outer(n_W, n_W)
+    e_x = np.sqrt(np.mean(np.sum(((log.x_W - log.x_d_W)[after] @ P_t) ** 2, axis=1)))
+    e_f = np.sqrt(np.mean((log.f_true_W[after] @ n_W - 1.0) ** 2))
+    assert e_x <= 0.5e-3 and e_f <= 0.05, (e_x, e_f)
+    assert np.all(np.isfinite(log.tau))
+    assert np.all(log.f_true_W[log.t >= 1.0] @ n_W > 0.5)  # contact kept after the touch
+
+
+@pytest.mark.parametrize('values, words', [
+    ({'tool_radius': 0.0}, 'tool_radius must be > 0'),
+    ({'surface_friction': -0.1}, 'surface_friction'),
+    ({'tool_mass': float('nan')}, 'tool_mass must be a finite number'),
+    ({'joint_limits': 'yes'}, 'joint_limits must be true or false'),
+])
+def test_bad_mujoco_options_are_refused(values, words):
+    with pytest.raises(ParameterValidationError, match=words):
+        mujoco_options(values)
+
+
+def test_unknown_physics_and_unknown_tool_link_are_refused():
+    with pytest.raises(ParameterValidationError, match='physics must be one of'):
+        check_physics('bullet')
+    model = RobotModel.from_urdf(end_effector_link='link2')
+    model.end_effector_link = 'no_such_link'
+    with pytest.raises(ParameterValidationError, match='no_such_link'):
+        MujocoPlant(model, default_urdf_path(), MujocoOptions(), None, np.zeros(2))
+
+
+def test_run_time_surface_changes_move_the_table_and_bound_its_stiffness():
+    model, plant, n_W = _plant('paper', 1700.0)
+    surface = plant.surface
+    plant.surface = ElasticSurface.create(4.0 * 1700.0, surface.x0_W + 0.01 * n_W, n_W)
+    meas = _press(model, plant, 5.0 * n_W)  # 1 cm further: 1 cm more to travel
+    depth = float(n_W @ (meas.p_W - plant.surface.x0_W)) + R_TOOL
+    assert float(n_W @ meas.f_true_W) / depth == pytest.approx(4.0 * 1700.0, rel=0.02)
+    with pytest.raises(SurfaceError, match='too high for the plate'):
+        plant.surface = ElasticSurface.create(5.0 * 1700.0, surface.x0_W, n_W)

@@ -1,0 +1,139 @@
+"""
+The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
+
+* the sim alone, brakes on: the wrist wrench is published in ``end_effector_link`` and reads
+  the tool's weight (the force the environment and gravity exert on the tool, sensor frame);
+* closed loops on the wall clock, the config files of ``demo --physics mujoco``: the paper's arm
+  (frictionless, and mu = 0.3) and the Panda (5 N on a table along a 10 cm line, mu = 0.3, sim
+  masses +/-30 % off, a 0.1 kg tool the controller compensates): contact is kept after the first
+  touch and the errors over the whole run after t = 5 s stay within loose bounds (a loaded 2-core
+  machine; docs/results_mujoco.md has the measured figures);
+* bad settings (unknown physics, a zero tool radius, a zero surface normal) stop the sim at
+  start-up with a clear error; at run time a stiffness the table top cannot take is refused.
+"""
+from __future__ import annotations
+
+from geometry_msgs.msg import WrenchStamped
+from hybrid_force_controller.core.arm7 import panda_urdf_path
+from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.ros.tracking import TrackingMeter
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import QoSProfile
+from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
+from sensor_msgs.msg import JointState
+
+CTRL = 'hybrid_force_controller.ros.controller_node'
+CONFIG = ROOT / 'config'
+RUN_S = 12.0  # of stamps after the first touch
+
+
+def _files(*names: str) -> list[str]:
+    return [a for name in names for a in ('--params-file', str(CONFIG / name))]
+
+
+ARMS = {
+    'paper': (_files('params.yaml', 'mujoco.yaml'), [0.0, -1.0, 0.0], 1.0),
+    'paper_mu03': (_files('params.yaml', 'mujoco.yaml') + ['-p', 'surface_friction:=0.3'],
+                   [0.0, -1.0, 0.0], 1.0),
+    'panda': (_files('panda_params.yaml', 'panda_table.yaml', 'mujoco.yaml')
+              + ['-p', f'robot_description:={panda_urdf_path()}', '-p', 'tool_mass:=0.1'],
+              [0.0, 0.0, -1.0], 5.0),
+}
+# loose on purpose: about 10x the targets of the issue (measured: docs/results_mujoco.md)
+BOUNDS = {'paper': (5e-3, 0.5), 'paper_mu03': (10e-3, 1.0), 'panda': (10e-3, 1.0)}
+# contact lost after the first touch, s: none, but on the paper's arm with friction the start
+# blend drags the tool up to 0.17 m/s and the contact chatters for about 0.3-0.45 s (MuJoCo's
+# soft friction cone at speed; docs/results_mujoco.md), never after t = 5 s
+LOST_AFTER_TOUCH = {'paper': 0.05, 'paper_mu03': 1.0, 'panda': 0.05}
+
+
+def _node(module, tmp_path, name, domain, args):
+    return NodeProcess(module, tmp_path / f'{name}.log', domain, args, params_file=None)
+
+
+@pytest.mark.parametrize('arm', sorted(ARMS))
+def test_closed_loop_in_real_time_on_mujoco(tmp_path, arm):
+    args, n_W, f_d = ARMS[arm]
+    domain = domain_id('mujoco_ros')
+    procs = [_node('sim_node.sim_node', tmp_path, 'sim', domain, args),
+             _node(CTRL, tmp_path, 'controller', domain, args)]
+    with Spun(domain) as spun:
+        meter = TrackingMeter(spun.node('mujoco_watcher'), np.array(n_W), f_d)
+        try:
+            for p in procs:
+                p.start()
+            wait_for(lambda: meter.latest > 0.0, 'the loop to run', alive=procs)
+            t_start = meter.latest
+            wait_for(lambda: meter.latest >= t_start + 5.0 + RUN_S, f'{RUN_S} s of run',
+                     alive=procs)
+            assert all(p.alive for p in procs)
+        finally:
+            for p in procs:
+                p.stop()
+    after_touch = meter.figures(t_start + 1.0, meter.latest)  # first touch: within 1 s
+    whole = meter.figures(t_start + 5.0, meter.latest)
+    print(arm, 'after touch', after_touch, 'from 5 s', whole)
+    tails = '\n'.join(p.tail(1500) for p in procs)
+    e_x, e_f = BOUNDS[arm]
+    assert after_touch['contact_lost_s'] <= LOST_AFTER_TOUCH[arm], (after_touch, tails)
+    assert whole['contact_lost_s'] <= 0.05, (whole, tails)
+    assert whole['rms_position_error_m'] <= e_x, (whole, tails)
+    assert whole['rms_force_error_n'] <= e_f, (whole, tails)
+    assert whole['samples'] > 0.5 * RUN_S * 100, whole
+
+
+def test_wrist_wrench_reads_the_tool_weight_in_the_end_effector_frame(tmp_path):
+    domain = domain_id('mujoco_ros')
+    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain,
+                _files('params.yaml', 'mujoco.yaml') + ['-p', 'tool_mass:=0.25'])
+    got: dict[str, object] = {}
+    with Spun(domain) as spun:
+        node = spun.node('wrench_watcher')
+        node.create_subscription(WrenchStamped, 'force_torque_sensor_broadcaster/wrench',
+                                 lambda m: got.setdefault('wrench', m), QoSProfile(depth=10))
+        node.create_subscription(JointState, 'joint_states',
+                                 lambda m: got.setdefault('js', m), QoSProfile(depth=10))
+        with sim:
+            wait_for(lambda: len(got) == 2, 'a wrench and a joint state', alive=[sim])
+    msg, js = got['wrench'], got['js']
+    model = RobotModel.from_urdf()
+    R_W_ee = model.kinematics(np.array(js.position), np.zeros(2)).R_W_ee
+    assert msg.header.frame_id == 'tool0'
+    f = msg.wrench.force
+    # brakes on, the surface touching at 0 N: the sensor feels the weight only
+    np.testing.assert_allclose([f.x, f.y, f.z], 0.25 * R_W_ee.T @ [0.0, -9.81, 0.0], atol=1e-6)
+
+
+@pytest.mark.parametrize('override, words', [
+    ('physics:=bullet', "physics must be one of ['paper', 'mujoco']"),
+    ('tool_radius:=0.0', 'tool_radius'),
+    ('surface_normal:=[0.0, 0.0, 0.0]', 'surface_normal'),
+])
+def test_bad_settings_stop_the_sim_at_start_up(tmp_path, override, words):
+    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain_id('mujoco_ros'),
+                _files('params.yaml', 'mujoco.yaml') + ['-p', override])
+    sim.start()
+    try:
+        sim.proc.wait(60)
+    finally:
+        sim.stop()
+    assert sim.returncode == 1, sim.tail()
+    assert 'invalid configuration' in sim.log_since() and words in sim.log_since(), sim.tail()
+
+
+def test_run_time_stiffness_is_bounded_by_the_table_top(tmp_path):
+    domain = domain_id('mujoco_ros')
+    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain, _files('params.yaml', 'mujoco.yaml'))
+    with Spun(domain) as spun, sim:
+        client = AsyncParameterClient(spun.node('param_client'), 'sim')
+        wait_for(client.services_are_ready, 'the sim parameter services', alive=[sim])
+        ok = wait_future(client.set_parameters([Parameter('stiffness', value=3400.0)]))
+        bad = wait_future(client.set_parameters([Parameter('stiffness', value=1e5)]))
+        got = wait_future(client.get_parameters(['stiffness']))
+    assert ok.results[0].successful, ok.results[0].reason
+    assert not bad.results[0].successful
+    assert 'too high for the plate' in bad.results[0].reason
+    assert got.values[0].double_value == 3400.0

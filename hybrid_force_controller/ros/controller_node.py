@@ -208,14 +208,15 @@ class ControllerNode(LifecycleNode):
         self._reference_sub = self.create_subscription(
             PointStamped, '~/reference', self._guarded('reference', self._on_reference),
             DEFAULT_QOS)
+        # a full collection holds the GIL (300 ms seen): before the control thread runs
+        gc.collect()
+        gc.freeze()  # the start-up heap is never scanned again: shorter collector passes
         self.loop = ControlLoop(self, self.runtime, self._loop_settings())
         self.loop.telemetry_every = self._decimation()
         self.state_label = 'inactive'
         self.get_logger().info(f"configured: {self.model.n} joints, base '{self.model.base_link}'"
                                f", inputs {self.loop.settings.topics['joint_states']}, "
                                f"commands {self.loop.settings.topics['commands']}")
-        gc.collect()
-        gc.freeze()  # the start-up heap is never scanned again: shorter collector passes
         return _OK
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -43,7 +43,7 @@ from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidati
 from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
 from hybrid_force_controller.core.simulator import Measurement
 from hybrid_force_controller.ros.cdr import read_float64_array
-from hybrid_force_controller.ros.control_loop import schedule_process, set_thread_scheduling
+from hybrid_force_controller.ros.control_loop import schedule_process
 from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
 from hybrid_force_controller.ros.model_source import expand_description
 from hybrid_force_controller.ros.node_params import (check_choice, check_cpus,
@@ -143,15 +143,13 @@ class SimNode(Node):
         """
         Give the calling thread, the one that spins this node, its real-time scheduling.
 
-        SCHED_FIFO ``thread_priority`` (and ``cpu_affinity``) for it, two below for the
+        SCHED_FIFO ``thread_priority`` (and ``cpu_affinity``) for it, one below for the
         middleware's threads (``control_loop.schedule_process``). ``main`` calls it; a node
         built in another program leaves that program's threads alone.
         """
         priority, cpus = self._scheduling
-        warnings = schedule_process(priority + 1, 'sim thread') if priority > 0 else []
-        warnings += set_thread_scheduling(priority, cpus)
-        for warning in warnings[:1]:
-            self.get_logger().warning(warning.replace('control thread', 'sim thread'))
+        for warning in schedule_process(priority, 'sim thread', cpus=cpus):
+            self.get_logger().warning(warning)
 
     def _make_messages(self) -> None:
         """Messages built once and refilled in place by every publish."""

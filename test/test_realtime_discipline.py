@@ -27,6 +27,7 @@ from pathlib import Path
 import time
 
 from hybrid_force_controller.core.contact import in_contact
+from hybrid_force_controller.ros.bench import storm_values
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -39,15 +40,6 @@ SIM = 'sim_node.sim_node'
 MASSES_OFF = ['-p', 'masses:=[0.65, 1.35]']
 STORM_HZ, STORM_S = 20.0, 5.0
 HOLD_LIMIT_MS = 20.0  # 20 periods: loose enough never to flake
-
-
-def _storm() -> list[tuple[str, float]]:
-    """Return the sets: f_d and lambda1 alternate; the last f_d is 1.5 N, the last lambda1 40."""
-    count = int(STORM_HZ * STORM_S)
-    f_d = [1.5 if (count // 2 - 1 - j) % 2 == 0 else 1.0 for j in range(count // 2)]
-    l1 = [40.0 if (count // 2 - 1 - j) % 2 == 0 else 42.0 for j in range(count // 2)]
-    return [(('f_d', f_d[k // 2]) if k % 2 == 0 else ('lambda1', l1[k // 2]))
-            for k in range(count)]
 
 
 def _policies(pid: int) -> dict[int, tuple[int, int]]:
@@ -106,7 +98,7 @@ def storm(tmp_path_factory):
         sim0 = rig.log.fresh_diag('sim', rig.procs)
         ctrl0 = rig.log.fresh_diag('hybrid_force_controller', rig.procs)
         futures, t0 = [], time.monotonic()
-        for k, (name, value) in enumerate(_storm()):
+        for k, (name, value) in enumerate(storm_values(STORM_HZ, STORM_S)):
             time.sleep(max(t0 + k / STORM_HZ - time.monotonic(), 0.0))  # the storm's pace
             futures.append(rig.params.set_parameters([Parameter(name, value=value)]))
         results = [wait_future(f).results[0] for f in futures]

@@ -31,7 +31,7 @@ from .load import CpuMeter
 from .tracking import TrackingMeter
 from ..tools.offline_bench import offline_figures
 
-__all__ = ['main', 'ros_loop_figures']
+__all__ = ['main', 'ros_loop_figures', 'storm_values']
 
 WARM_UP_TIMEOUT_S = 90.0
 
@@ -147,7 +147,7 @@ def _freeze(proc: subprocess.Popen, count: int, hold_s: float) -> list[float]:
     return times
 
 
-def _storm_values(rate_hz: float, duration_s: float) -> list[tuple[str, float]]:
+def storm_values(rate_hz: float, duration_s: float) -> list[tuple[str, float]]:
     """Return the sets: f_d and lambda1 alternate, the last f_d is 1.5 N, the last lambda1 40."""
     count = max(2, int(round(rate_hz * duration_s)))
     n_f, n_l = (count + 1) // 2, count // 2
@@ -161,7 +161,7 @@ def _param_storm(diag: _Diagnostics, rate_hz: float, duration_s: float) -> dict[
     """Send the storm's sets at ``rate_hz`` without waiting for answers; count the answers."""
     from rclpy.parameter import Parameter
     futures, t_start = [], time.monotonic()
-    for k, (name, value) in enumerate(_storm_values(rate_hz, duration_s)):
+    for k, (name, value) in enumerate(storm_values(rate_hz, duration_s)):
         time.sleep(max(t_start + k / rate_hz - time.monotonic(), 0.0))
         if name == 'f_d':
             diag.tracking.set_f_d(time.time(), value)

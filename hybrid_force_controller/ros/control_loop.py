@@ -93,27 +93,29 @@ def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
     return warnings
 
 
-def schedule_process(priority: int, what: str, keep: tuple[int, ...] = ()) -> list[str]:
+def schedule_process(priority: int, what: str, keep: tuple[int, ...] = (),
+                     cpus: Sequence[int] = ()) -> list[str]:
     """
-    Give the calling thread SCHED_FIFO ``priority - 1`` and the process's other threads ``- 2``.
+    Give the calling thread SCHED_FIFO ``priority`` and the process's other threads one less.
 
     Called by a node's ``main`` on the thread that spins the node, once the node exists: the
     other threads then are the middleware's (DDS receive, events, shared-memory watchdog).
     A loop that waits for a DDS thread to deliver its input, or for the node's thread to let
     the GIL go, waits as long as ordinary processes keep those threads off the CPU (a
-    priority inversion: 167 ms holds and 66 ms effort gaps beside two busy processes); at
-    FIFO below the loop's they preempt ordinary processes, and the loop still preempts
-    them. ``keep``: thread ids left as they are (a control thread scheduled already).
-    ``priority`` 0 or 1 leaves the scheduler alone. Returns the warnings.
+    priority inversion: 167 ms holds and 217 ms effort gaps beside two busy processes); at
+    FIFO they preempt ordinary processes, and a loop above them still preempts them.
+    ``keep``: thread ids left as they are (a control thread scheduled already); ``cpus``:
+    the calling thread's CPUs. ``priority`` <= 0 leaves the scheduler alone. Returns the
+    first warning, if any.
     """
-    if priority <= 1:
+    if priority <= 0:
         return []
     me = threading.get_native_id()
-    warnings = set_thread_scheduling(priority - 1, ())
+    warnings = set_thread_scheduling(priority, cpus)
     others = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
     for tid in others:
         try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority - 2)))
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority - 1)))
         except OSError as exc:
             warnings.append(f'could not set SCHED_FIFO on the middleware threads ({exc})')
             break

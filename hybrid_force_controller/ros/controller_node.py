@@ -271,7 +271,7 @@ class ControllerNode(LifecycleNode):
         that program's threads alone.
         """
         keep = () if self.loop is None or self.loop.native_id is None else (self.loop.native_id,)
-        self._node_scheduling = schedule_process(self._thread_priority(), 'node thread', keep)
+        self._node_scheduling = schedule_process(self._thread_priority() - 1, 'node thread', keep)
 
     def destroy_node(self) -> None:
         """Stop the control thread first (a node destroyed without a shutdown transition)."""

@@ -92,9 +92,11 @@ def test_inconsistent_timing_is_rejected(bad):
 
 
 # ------------------------------------------------------------------ gaps and late ticks
-def hiccup_run(who: str, max_integration_dt: float | None = None):
+def hiccup_run(who: str, max_integration_dt: float | None = None, stall_periods: float = 10.0):
     stalls = tuple(Stall(who, t, 0.050) for t in (6.0, 7.0, 8.0))
-    overrides = {} if max_integration_dt is None else {'max_integration_dt': max_integration_dt}
+    overrides = {'stall_periods': stall_periods}
+    if max_integration_dt is not None:
+        overrides['max_integration_dt'] = max_integration_dt
     return run_scenario(ScenarioConfig(theta_hat0_scale=0.5, duration=12.0, overrides=overrides,
                                        timing=TimingModel.ros_measured(seed=0, stalls=stalls)))
 
@@ -114,21 +116,36 @@ def test_50_ms_gaps_leave_force_effort_and_theta_hat_calm(who):
     assert np.abs(np.diff(r.tau[w], axis=0)).max() <= 0.5
     assert np.abs(r.theta_hat[w] / r.theta_true - 1.0).max() <= 0.01
     assert r.runtime.counters['safe_mode_entries'] == 0
-    assert r.runtime.counters['late_states'] >= 3  # the gaps were integrated clamped
+    if who == 'controller':  # the node sees its own gaps: stalls, nothing integrated
+        assert r.runtime.counters['stalls'] >= 3  # and the timing model's random ones
+        assert r.runtime.recovery.counts['stall'] >= 3
+    else:  # the plant's: late states, integrated clamped
+        assert r.runtime.counters['late_states'] >= 3
+
+
+def _excursion(r) -> float:
+    w = r.t >= 5.5
+    return float(np.abs(r.theta_hat[w] / r.theta_true - 1.0).max())
 
 
 def test_clamping_the_integration_step_halves_the_theta_hat_excursion():
     """
-    Negative control.
+    Negative control (stall detection off: a 50 ms gap is a late state).
 
     A late state allowed to integrate its whole gap moves theta_hat about twice as far.
     """
-    def excursion(r):
-        w = r.t >= 5.5
-        return np.abs(r.theta_hat[w] / r.theta_true - 1.0).max()
-    clamped, free = hiccup_run('controller'), hiccup_run('controller', 1.0)
+    clamped = hiccup_run('controller', stall_periods=1e6)
+    free = hiccup_run('controller', 1.0, stall_periods=1e6)
     assert free.runtime.counters['late_states'] == 0
-    assert excursion(free) > 1.5 * excursion(clamped)
+    assert clamped.runtime.counters['stalls'] == free.runtime.counters['stalls'] == 0
+    assert _excursion(free) > 1.5 * _excursion(clamped)
+
+
+def test_a_stall_integrates_nothing_across_it():
+    """With stall detection (default), a 50 ms gap integrates nothing: less than clamped."""
+    stalled, clamped = hiccup_run('controller'), hiccup_run('controller', stall_periods=1e6)
+    assert stalled.runtime.counters['late_states'] < clamped.runtime.counters['late_states']
+    assert _excursion(stalled) < _excursion(clamped)
 
 
 def test_old_gains_fail_where_the_new_ones_hold():

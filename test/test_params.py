@@ -7,6 +7,7 @@ import re
 from hybrid_force_controller.core.params import (build_params, CONTROLLER_SCHEMA, ControllerParams,
                                                  LawGains, ParameterValidationError, RuntimeConfig,
                                                  schema_defaults)
+from hybrid_force_controller.core.recovery import RecoveryConfig
 from hybrid_force_controller.core.robot_model import RobotModel
 import numpy as np
 import pytest
@@ -37,11 +38,15 @@ def rejects(model: RobotModel, values: dict, name: str) -> str:
 def test_schema_names_are_unique_and_match_the_dataclasses():
     names = [s.name for s in CONTROLLER_SCHEMA]
     assert len(names) == len(set(names))
-    assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime', 'stiffness'}
+    assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime', 'stiffness',
+                                                          'recovery'}
     law = {s.name for s in CONTROLLER_SCHEMA if s.group == 'law'}
     runtime = {s.name for s in CONTROLLER_SCHEMA if s.group == 'runtime'}
+    recovery = {s.name for s in CONTROLLER_SCHEMA if s.group == 'recovery'}
     assert law - {'gamma'} == set(LawGains.__dataclass_fields__) - {'Gamma'}
     assert runtime == set(RuntimeConfig.__dataclass_fields__)
+    assert recovery - {'episode_recovery'} | {'enabled'} == set(
+        RecoveryConfig.__dataclass_fields__)
 
 
 @pytest.mark.parametrize('spec', CONTROLLER_SCHEMA, ids=lambda s: s.name)

@@ -282,7 +282,7 @@ class HybridForceController:
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
              r_bias: tuple[float, float] = (0.0, 0.0),
-             kin: TaskKinematics | None = None) -> ControlOutput:
+             kin: TaskKinematics | None = None, adapt: bool = True) -> ControlOutput:
         """
         One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
 
@@ -304,6 +304,8 @@ class HybridForceController:
             Added to the normal part of r and rdot in the force loop (m/s, m/s^2).
         kin : TaskKinematics, optional
             ``model.kinematics(q, qdot)`` when the caller has it already.
+        adapt : bool
+            False freezes theta_hat (a fault episode); h still integrates.
 
         Returns
         -------
@@ -335,25 +337,39 @@ class HybridForceController:
         if dt > 0.0:
             if approach is not None:  # adapt on the motion along the surface only
                 s = J_pinv @ (e - d.n * float(d.n @ e))
-            e_norm = math.sqrt(float(e @ e))
-            if e_norm > g.adapt_error_limit:  # a transient, not a model error (docstring)
-                s = s * (g.adapt_error_limit / e_norm)
-            self._integrate(Y_q, s, df_n, dt, in_contact and approach is None)
+            self._integrate(Y_q, s * self._adaptation_weight(e) if adapt else None, df_n, dt,
+                            in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
 
-    def _integrate(self, Y_q: np.ndarray, s: np.ndarray, df_n: float, dt: float,
+    def _adaptation_weight(self, e: np.ndarray) -> float:
+        """
+        Scale of e in (26): the saturation to ``adapt_error_limit`` and the dead zone.
+
+        ``w = min(1, e_lim / |e|) max(0, 1 - d / |e|)``: a transient (``|e| > e_lim``) adapts
+        in the direction of e with a bounded size (module docstring); an error below the dead
+        zone d (sensor noise) does not adapt at all, and w is continuous in e.
+        """
+        g = self._d.gains
+        e_norm = math.sqrt(float(e @ e))
+        if e_norm <= g.adapt_dead_zone:
+            return 0.0
+        w = 1.0 if e_norm <= g.adapt_error_limit else g.adapt_error_limit / e_norm
+        return w * (1.0 - g.adapt_dead_zone / e_norm) if g.adapt_dead_zone > 0.0 else w
+
+    def _integrate(self, Y_q: np.ndarray, s: np.ndarray | None, df_n: float, dt: float,
                    force_loop: bool) -> None:
         """
         Integrate eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and h, eq. (20).
 
-        The force integral h is frozen out of contact (anti-windup) and never holds a retreat
-        (h > 0) there.
+        ``s`` None: theta_hat is frozen (a fault episode, recovery.py). The force integral h is
+        frozen out of contact (anti-windup) and never holds a retreat (h > 0) there.
         """
         d = self._d
         g = d.gains
-        theta = adapt_theta(self.theta_hat, d.Gamma_inv, Y_q, g.k_a * s, dt, g.theta_min,
-                            g.theta_max)
-        self.theta_hat = theta if self._project is None else self._project(theta)
+        if s is not None:
+            theta = adapt_theta(self.theta_hat, d.Gamma_inv, Y_q, g.k_a * s, dt, g.theta_min,
+                                g.theta_max)
+            self.theta_hat = theta if self._project is None else self._project(theta)
         if force_loop:
             limit = self._k.h_limit
             self.h = min(max(self.h + df_n * dt, -limit), limit)

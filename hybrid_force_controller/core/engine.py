@@ -9,8 +9,10 @@ its state (joint state and wrench, one stamp); each message reaches the controll
 latency; the controller ticks on a timer (or on each new state) and its effort reaches the
 plant after a latency; either process can stall (a scheduler hiccup, SIGSTOP), during
 which it neither publishes nor reads, while the plant's physics goes on with the command
-it holds. Times are integer nanoseconds inside, so equal times compare exactly;
-``TimingModel.lockstep(d)`` reproduces the old "d periods of delay" model. Pure numpy.
+it holds, for at most ``command_timeout``: then the plant applies zero effort, as the sim's
+watchdog and a torque-controlled arm's do (the arm falls). Times are integer nanoseconds
+inside, so equal times compare exactly; ``TimingModel.lockstep(d)`` reproduces the old "d
+periods of delay" model. Pure numpy.
 """
 from __future__ import annotations
 
@@ -24,7 +26,9 @@ from .environment import sensor_wrench_from_f_W
 from .runtime import ControllerRuntime, Mode
 from .timing import Schedule, TimingModel
 
-__all__ = ['Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop']
+__all__ = ['COMMAND_TIMEOUT_S', 'Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop']
+
+COMMAND_TIMEOUT_S = 0.1  # the plant's watchdog, as the sim node's default command_timeout
 
 
 class Plant(Protocol):
@@ -100,13 +104,18 @@ class LoopEngine:
     wrist sensor). ``input_hook(t, (q, qdot, F_S))`` may return a corrupted tuple, or None
     to drop the message (fault injection). ``clock_ns`` (e.g. ``time.perf_counter_ns``,
     injected by a benchmark) times every ``runtime.tick`` into ``LoopLog.tick_ns``.
+    ``command_timeout`` (s, plant time; ``math.inf``: never) is the plant's watchdog: a
+    command older than this is replaced by zero effort, as the sim node does.
     """
 
     def __init__(self, runtime: ControllerRuntime, plant: Plant, horizon: float,
                  timing: TimingModel = TimingModel(), events: Sequence[Event] = (),
                  wrench_frame: str | None = None,
                  input_hook: Callable[[float, Any], Any] | None = None,
-                 clock_ns: Callable[[], int] | None = None) -> None:
+                 clock_ns: Callable[[], int] | None = None,
+                 command_timeout: float = COMMAND_TIMEOUT_S) -> None:
+        if not command_timeout > 0.0:
+            raise ValueError(f'command_timeout must be > 0, got {command_timeout!r}')
         self.runtime, self.plant = runtime, plant
         self.schedule = Schedule(timing, horizon)
         self.steps = int(round(horizon * 1e9 / self.schedule.period_ns))
@@ -117,6 +126,9 @@ class LoopEngine:
         self._to_ctrl, self._to_plant = _Channel(), _Channel()
         self._events = sorted(events, key=lambda e: e.t)
         self.tau_plant: np.ndarray | None = None  # the command the plant holds
+        self._timeout_ns = _ns(command_timeout) if math.isfinite(command_timeout) else None
+        self._t_cmd = 0  # when the plant received tau_plant, ns
+        self.command_timeouts = 0  # times the plant's watchdog zeroed the effort
         self.meas = plant.measure()
         self.k = 0
         self.outputs: list = []  # the runtime's outputs of the last step
@@ -143,7 +155,9 @@ class LoopEngine:
         self.outputs = [self._tick(t) for t in sched.ticks_until(t_k, self._to_ctrl)]
         if not sched.plant_stalled(t_k):
             cmd = self._to_plant.newest(t_k)
-            self.tau_plant = self.tau_plant if cmd is None else cmd
+            if cmd is not None:
+                self.tau_plant, self._t_cmd = cmd, t_k
+            self._watchdog(t_k)
         if k < self.steps:
             self.log.record(k, t_k * 1e-9, meas, self.runtime, self.tau_plant)
         dt = P * 1e-9
@@ -151,6 +165,13 @@ class LoopEngine:
                      else self.plant.step(self.tau_plant, dt))
         self.k += 1
         return meas
+
+    def _watchdog(self, t_k: int) -> None:
+        """Zero the held command once it is older than the plant's ``command_timeout``."""
+        limit, tau = self._timeout_ns, self.tau_plant
+        if limit is not None and tau is not None and t_k - self._t_cmd > limit and tau.any():
+            self.tau_plant = np.zeros_like(tau)
+            self.command_timeouts += 1
 
     def _tick(self, t_tick: int) -> Any:
         got = self._to_ctrl.newest(t_tick)

@@ -7,7 +7,8 @@ overrides values. :func:`build_params` validates a full set once and freezes it 
 :class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
 (26), (29) of [1]), the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
 filter, reference, timeouts, approach, sensor plausibility, tool mass) and the online stiffness
-estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``). Pure Python + numpy.
+estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``) and the recovery from
+stalls and drops (:class:`~.recovery.RecoveryConfig`, group ``recovery``). Pure Python + numpy.
 """
 from __future__ import annotations
 
@@ -18,7 +19,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, ParamSpec, STIFFNESS_FIELDS
+from .recovery import RecoveryConfig, RecoveryConfigError
+from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, ParamSpec, RECOVERY_FIELDS
+from .schema import STIFFNESS_FIELDS
 from .stiffness import StiffnessConfig, StiffnessConfigError
 
 __all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'LawGains', 'ParamSpec',
@@ -48,6 +51,7 @@ class LawGains:
     k_s: float
     k_a: float
     adapt_error_limit: float
+    adapt_dead_zone: float
     theta_hat0: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
@@ -84,12 +88,13 @@ class ControllerParams:
     """
     One validated, frozen parameter set.
 
-    The law's gains, the runtime's configuration and the stiffness estimate's.
+    The law's gains, the runtime's configuration, the stiffness estimate's and the recovery's.
     """
 
     law: LawGains
     runtime: RuntimeConfig
     stiffness: StiffnessConfig
+    recovery: RecoveryConfig = RecoveryConfig()
 
 
 def schema_defaults() -> dict[str, Any]:
@@ -219,7 +224,8 @@ def _law_gains(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> LawG
         Gamma=_gamma(v['gamma'], len(model.theta_nominal)),
         n=_normal(v['n'], model.task_axes), f_d=s['f_d'], k_d=s['k_d'], k_null=s['k_null'],
         k_max=s['k_max'], k_s=s['k_s'], k_a=s['k_a'],
-        adapt_error_limit=s['adapt_error_limit'], theta_hat0=theta0, theta_min=lo,
+        adapt_error_limit=s['adapt_error_limit'], adapt_dead_zone=s['adapt_dead_zone'],
+        theta_hat0=theta0, theta_min=lo,
         theta_max=hi, integral_limit=s['integral_limit'])
 
 
@@ -266,7 +272,15 @@ def build_params(model: Any, values: Mapping[str, Any] | None = None) -> Control
     s = {name: _scalar(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'double'}
     s.update({name: _bool(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'bool'})
     return ControllerParams(law=_law_gains(v, s, model), runtime=_runtime_config(v, s, model),
-                            stiffness=_stiffness_config(s))
+                            stiffness=_stiffness_config(s), recovery=_recovery_config(s))
+
+
+def _recovery_config(s: Mapping[str, Any]) -> RecoveryConfig:
+    """Build the ``recovery`` group (its fields are named as the parameters)."""
+    try:
+        return RecoveryConfig(**{f: s[name] for name, f in RECOVERY_FIELDS.items()})
+    except RecoveryConfigError as exc:
+        raise ParameterValidationError(str(exc)) from None
 
 
 def _stiffness_config(s: Mapping[str, Any]) -> StiffnessConfig:

@@ -30,17 +30,19 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .approach import Approach
+from .approach import Approach, Handover
+from .bumpless import RestartBlend
 from .contact import ContactDetector, in_contact
 from .control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
 from .effort import EffortLimiter, SafeHold
 from .inputs import InputError
 from .latest_inputs import LatestInputs
-from .margin import MarginCache
 from .modes import Mode, TickOutput
-from .params import build_params, ControllerParams, ParameterValidationError
+from .params import ControllerParams
+from .recovery import Recovery
 from .reference import BlendedReference, SineReference
 from .robot_model import ModelError, RobotModel
+from .set_validation import SetValidator
 from .stiffness_loop import StiffnessLoop, StiffnessStatus
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
@@ -60,10 +62,9 @@ class _Clock:
     t_used: float = -math.inf
 
 
-HANDOVER_S = 0.02  # approach -> force loop: the normal r and rdot blend over this, s
 _COUNTERS = ('ticks', 'joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
              'safe_mode_entries', 'control_errors', 'saturated_ticks', 'clock_restarts',
-             'approach_entries', 'stale_ticks', 'late_states')
+             'approach_entries', 'stale_ticks', 'late_states', 'stalls')
 
 
 class ControllerRuntime:
@@ -83,10 +84,13 @@ class ControllerRuntime:
         self._clock = _Clock()
         self._r_n = 0.0
         self._rdot_n = 0.0
-        self._handover = (-math.inf, 0.0, 0.0)  # (stamp, r_n and rdot_n gaps) at hand-over
+        self._handover = Handover()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
-        self._q_op: np.ndarray | None = None
-        self._margins = MarginCache()
+        self.validator = SetValidator(model)
+        self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
+        self._tau_last: np.ndarray | None = None  # the last effort out (model order)
+        self._bumpless = RestartBlend()
+        self._restarted = False  # a restart's episode begins at the next start
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -99,48 +103,17 @@ class ControllerRuntime:
         return self._params.runtime.joints
 
     def validate(self, values: dict[str, Any]) -> ControllerParams:
-        """
-        Validate a full set of parameter values -> ControllerParams (ParameterValidationError).
-
-        Beyond the schema, the gains must leave a delay margin (margin.py) of at least
-        ``min_delay_margin`` at the operating pose (:attr:`operating_pose`), so whether a
-        set is accepted depends on its values, not on where the arm is at that instant
-        (unchecked before the first state). Margins are cached by the values they depend
-        on, so sets of f_d, or values set before, cost no margin evaluation.
-        """
-        params = build_params(self.model, values)
-        need = params.runtime.min_delay_margin
-        margin = self.delay_margin(params)
-        if need > 0.0 and margin < need:
-            raise ParameterValidationError(
-                f'the gains leave a delay margin of {margin * 1e3:.2f} ms at the operating '
-                f'pose, less than min_delay_margin = {need * 1e3:.2f} ms (lower k_d, k_a or '
-                'lambda1, or min_delay_margin)')
-        return params
+        """Validate a full set of values (set_validation.py; for the node's thread)."""
+        return self.validator.validate(values)
 
     @property
     def operating_pose(self) -> np.ndarray | None:
-        """
-        Return the pose the delay margin is checked at: the first joint state of this runtime.
-
-        Fixed for the runtime's life (the node makes a runtime per configure); None before.
-        """
-        return self._q_op
+        """Return the pose the delay margin is checked at: the first joint state (or None)."""
+        return self.validator.operating_pose
 
     def delay_margin(self, params: ControllerParams | None = None) -> float:
-        """
-        Return the loop delay the gains tolerate at the operating pose, s (margin.py).
-
-        Inf before the first joint state or at a singular pose.
-        """
-        params = params or self._params
-        if self._q_op is None:
-            return math.inf
-        try:
-            return self._margins.get(self.model, params.law, self._q_op,
-                                     params.runtime.force_filter_hz, params.stiffness)
-        except (np.linalg.LinAlgError, ValueError):
-            return math.inf
+        """Return the loop delay the gains tolerate at the operating pose, s (margin.py)."""
+        return self.validator.delay_margin(params or self._params)
 
     def set_params(self, params: ControllerParams) -> None:
         """
@@ -170,6 +143,7 @@ class ControllerRuntime:
         self._cmd_order = [self.model.joint_names.index(j) for j in rt.joints]
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
         self._approach.configure(rt.approach_speed, rt.approach_limit)
+        self.recovery.configure(params.recovery)
         self._period = 1.0 / rt.rate_hz
         self.f_d_W = params.law.f_d * params.law.n
 
@@ -178,8 +152,8 @@ class ControllerRuntime:
                        qdot: Sequence[float] | None, t: float) -> None:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
         self._in.on_joint_state(names, q, qdot, t)
-        if self._q_op is None and self._in.state is not None:
-            self._q_op = self._in.state.q.copy()
+        if self.validator.operating_pose is None and self._in.state is not None:
+            self.validator.note_pose(self._in.state.q)
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
@@ -242,6 +216,7 @@ class ControllerRuntime:
         c = self._clock
         if t < c.t_tick - self._period:  # the clock jumped back (e.g. a restarted /clock)
             self.restart_clock()
+        stalled = self._stalled(t)
         c.t_tick = max(c.t_tick, t)
         if self._in.state is None or self._in.wrench is None:
             return self._output(None, Mode.WAITING, 'waiting for joint states and wrench')
@@ -249,38 +224,51 @@ class ControllerRuntime:
         stale = self._in.stale(t)
         if stale:
             return self._safe(f_W, stale, t)
-        dt_state, dt_int = self._state_step()
+        dt_state, dt_int = self._state_step(stalled or self._restarted)
         f_n = float(self._params.law.n @ f_W)
         touching = self._contact.update(f_n, self._params.law.f_d, self._in.state.t)
         if self.mode in (Mode.WAITING, Mode.SAFE):
+            if self._restarted:
+                self._restarted = False
+                self._begin('restart', t)
             self._start(touching)
         else:
-            self._switch(touching, f_W)
+            self._switch(touching, f_W, t)
+            if stalled:  # the reference starts again from the arm
+                self._blend_from_arm()
+        kind = self.recovery.triggered()
+        if kind:  # the last tick's force transient or tracking fault
+            self._begin(kind, t)
         approach = self._approach_ref(dt_state)
         ref = self._ref(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self._params.law.f_d),
                                  approach=approach, r_bias=self._handover_bias(),
-                                 kin=self._in.kin())
+                                 kin=self._in.kin(), adapt=not self.recovery.frozen)
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
         if dt_state > 0.0:
             self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
         self._r_n, self._rdot_n = out.r_n, out.rdot_n
+        self._observe(t, f_n, out.e, touching)
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref.x_d_W, f_W)
 
-    def _state_step(self) -> tuple[float, float]:
+    def _state_step(self, stalled: bool) -> tuple[float, float]:
         """
         Return the time since the state the last integration used, and the part to integrate.
 
-        The time is 0 if no state is new; the part of it theta_hat and h integrate is at most
-        ``max_integration_dt``.
+        The time is 0 if no state is new, or after a gap (a stall or a restart: nothing
+        integrates across it, nor does the stiffness estimate see it); the part of it
+        theta_hat and h integrate is at most ``max_integration_dt``.
         """
         c, t = self._clock, self._in.state.t
+        if stalled:
+            c.t_used = max(c.t_used, t)
+            return 0.0, 0.0
         if t <= c.t_used:
             self.counters['stale_ticks'] += 1
             return 0.0, 0.0
@@ -295,37 +283,34 @@ class ControllerRuntime:
         """(Re)start: the reference blends from the arm's position and velocity."""
         c = self._clock
         c.t0 = self._in.state.t if c.t0 is None else c.t0
+        self.mode = Mode.RUNNING
+        self._blend_from_arm()
+        if not touching and self._approach.speed > 0.0:
+            self._enter_approach()
+
+    def _blend_from_arm(self) -> None:
+        """Blend the reference from the arm's position and velocity (an approach goes on)."""
         kin = self._in.kin()
         pdot_W = np.zeros(3)
         pdot_W[self.model.task_index] = kin.xdot
         self._ref.start_from(self.run_time, kin.p_W, pdot_W)
         self._r_n = float(self._params.law.n @ pdot_W)
-        self.mode = Mode.RUNNING
-        if not touching and self._approach.speed > 0.0:
-            self._enter_approach()
 
-    def _switch(self, touching: bool, f_W: np.ndarray) -> None:
-        """Contact lost: approach; contact found: the force loop, r continuous."""
+    def _switch(self, touching: bool, f_W: np.ndarray, t: float) -> None:
+        """Contact lost: approach (an episode); contact found: the force loop, r continuous."""
         if self.mode == Mode.RUNNING and not touching and self._approach.speed > 0.0:
+            self._begin('contact_loss', t)
             self._enter_approach()
         elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
             r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._params.law.n @ f_W))
-            self._handover = (self._in.state.t, self._r_n - r_f, self._rdot_n - rdot_f)
+            self._handover.start(self._in.state.t, self._r_n - r_f, self._rdot_n - rdot_f)
             self.mode = Mode.RUNNING
 
     def _handover_bias(self) -> tuple[float, float]:
-        """
-        Bumpless hand-over from an approach.
-
-        What the approach demanded of r and rdot along n fades into the force loop's with a cosine
-        over HANDOVER_S (r and rdot stay continuous, so the effort does; no integral wind-up).
-        """
-        t_c, dr, drdot = self._handover
-        s = (self._in.state.t - t_c) / HANDOVER_S
-        if self.mode != Mode.RUNNING or s >= 1.0:
+        """Return the approach's part of r and rdot along n still fading (approach.py)."""
+        if self.mode != Mode.RUNNING:
             return 0.0, 0.0
-        w = 0.5 * (1.0 + math.cos(math.pi * max(s, 0.0)))
-        return w * dr, w * drdot
+        return self._handover.bias(self._in.state.t)
 
     def _enter_approach(self) -> None:
         kin = self._in.kin()
@@ -361,11 +346,34 @@ class ControllerRuntime:
         """
         Start again from the arm's state on the next tick (after a deactivation).
 
-        The reference re-blends, the force integral and the rate limiter restart.
+        The reference re-blends, the force integral and the rate limiter restart, and the
+        effort blends from the last one out, which the hardware held (bumpless.py).
         """
         self.mode = Mode.WAITING
         self._limiter.reset()
-        self.ctrl.h = 0.0
+        self._bumpless.arm(self._tau_last)
+        self._restarted = True
+
+    # ------------------------------------------------------------------ episodes (recovery.py)
+    def _stalled(self, t: float) -> bool:
+        """Say whether the gap since the last tick is a stall (an episode; counted)."""
+        gap = t - self._clock.t_tick
+        if self.mode == Mode.WAITING or not gap > self.recovery.cfg.stall_periods * self._period:
+            return False
+        self.counters['stalls'] += 1
+        self._begin('stall', t)
+        return True
+
+    def _begin(self, kind: str, t: float) -> None:
+        """Open an episode; theta_hat takes the trusted estimate (if there is one)."""
+        theta = self.recovery.begin(kind, t)
+        if theta is not None:
+            self.ctrl.theta_hat = theta.copy()
+
+    def _observe(self, t: float, f_n: float, e: np.ndarray, touching: bool) -> None:
+        """Note this tick's errors: calm stretches, and the next tick's episode triggers."""
+        self.recovery.note(t, abs(f_n - self._params.law.f_d), math.sqrt(float(e @ e)),
+                           touching and self.mode == Mode.RUNNING, self.ctrl.theta_hat)
 
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
         """Hold (effort.SafeHold); the velocity is damped only while it is fresh."""
@@ -373,6 +381,7 @@ class ControllerRuntime:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
             self._hold.latch(f_W)
+            self._begin('safe_mode', t)
         self.mode = Mode.SAFE
         law, s = self._params.law, self._in.state
         fresh = t - s.t <= self._params.runtime.state_timeout
@@ -391,6 +400,9 @@ class ControllerRuntime:
                 f_W: np.ndarray | None = None, x_W: np.ndarray | None = None,
                 x_d_W: np.ndarray | None = None, e: np.ndarray | None = None) -> TickOutput:
         self.mode, self.status = mode, status
+        if tau is not None:
+            tau = self._bumpless(tau, self._clock.t_tick)
+            self._tau_last = tau
         x_W = np.zeros(3) if x_W is None else x_W
         f = np.zeros(3) if f_W is None else f_W.copy()
         e_W = np.zeros(3)

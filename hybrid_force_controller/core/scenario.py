@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .contact import in_contact
-from .engine import Event, LoopLog, run_loop
+from .engine import COMMAND_TIMEOUT_S, Event, LoopLog, run_loop
 from .environment import ElasticSurface
 from .params import build_params
 from .robot_model import RobotModel
@@ -37,7 +37,8 @@ class ScenarioConfig:
     parameter) multiplies the true parameters to give the initial estimate; ``overrides``
     are controller parameter values; ``timing`` (default: lockstep with ``delay_steps``),
     ``events`` (parameter sets, surface moves at given times) and ``input_hook`` (faults
-    on the messages the controller receives) go to the engine.
+    on the messages the controller receives) and the plant's ``command_timeout`` (its
+    watchdog, s) go to the engine.
     """
 
     k: float = 1700.0
@@ -52,6 +53,7 @@ class ScenarioConfig:
     timing: TimingModel | None = None
     events: Sequence[Event] = ()
     input_hook: Callable[[float, Any], Any] | None = None
+    command_timeout: float = COMMAND_TIMEOUT_S
 
 
 @dataclass(kw_only=True)
@@ -93,7 +95,7 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
                          substeps=cfg.substeps, noise_sigma=cfg.noise_sigma, seed=cfg.seed)
     timing = TimingModel.lockstep(cfg.delay_steps) if cfg.timing is None else cfg.timing
     log = run_loop(runtime, plant, cfg.duration, timing, cfg.events, clock_ns=clock_ns,
-                   input_hook=cfg.input_hook)
+                   input_hook=cfg.input_hook, command_timeout=cfg.command_timeout)
     n_W = params.law.n
     contact = np.array([in_contact(float(n_W @ f)) for f in log.f_true_W])
     return ScenarioResult(**vars(log), in_contact=contact, n_W=n_W.copy(),

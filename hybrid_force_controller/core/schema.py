@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ParamSpec', 'STIFFNESS_FIELDS']
+__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ParamSpec', 'RECOVERY_FIELDS',
+           'STIFFNESS_FIELDS']
 
 
 @dataclass(frozen=True)
@@ -19,7 +20,7 @@ class ParamSpec:
 
     Its ROS type (``double``, ``integer``, ``double_array``, ``string_array``, ``string``,
     ``bool``), default, description, closed bounds (``None``: unbounded) and the group it
-    configures (``law``, ``runtime`` or ``stiffness``).
+    configures (``law``, ``runtime``, ``stiffness`` or ``recovery``).
     """
 
     name: str
@@ -39,6 +40,10 @@ def _law(*args: Any, **kwargs: Any) -> ParamSpec:
 
 def _stf(*args: Any, **kwargs: Any) -> ParamSpec:
     return ParamSpec(*args, group='stiffness', **kwargs)
+
+
+def _rec(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='recovery', **kwargs)
 
 
 _S = ParamSpec
@@ -71,6 +76,9 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _law('adapt_error_limit', 'double', 0.1,
          'The adaptation (26) integrates e saturated to this norm, m/s (transients such as '
          'impacts do not throw theta_hat).', 0.0, 1e3, positive=True),
+    _law('adapt_dead_zone', 'double', 0.0,
+         'Dead zone of the adaptation (26): it integrates e scaled by max(0, 1 - d/|e|), '
+         'so errors below d (sensor noise) do not drift theta_hat, m/s (0: off).', 0.0, 1e3),
     _law('theta_hat0', 'double_array', [],
          'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',
          read_only=True),
@@ -154,7 +162,29 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _stf('stiffness_force_floor', 'double', 0.01,
          'Floor of the residual standard deviation in the validity test, N.', 0.0, 1e3,
          positive=True),
+    # recovery from stalls and drops (recovery.py, docs/design.md): episodes, trusted theta_hat
+    _rec('episode_recovery', 'bool', True,
+         'During a fault episode (stall, contact loss, safe mode, force transient, tracking '
+         'fault) theta_hat holds the trusted estimate of the last calm stretch (false: '
+         'episodes are only counted).'),
+    _rec('stall_periods', 'double', 10.0,
+         'A gap between ticks longer than this many periods is a stall: nothing integrates '
+         'across it and the reference re-blends from the arm.', 2.0, 1e6),
+    _rec('calm_time', 'double', 0.5,
+         'Calm this long ends an episode and makes theta_hat trusted, s.', 0.0, 60.0),
+    _rec('calm_force', 'double', 0.2, 'Calm: |f_n - f_d| below this, N.', 0.0, 1e3,
+         positive=True),
+    _rec('calm_error', 'double', 0.02, 'Calm: |e| below this, m/s.', 0.0, 1e3, positive=True),
+    _rec('transient_force', 'double', 3.0,
+         'A force error |f_n - f_d| above this starts an episode (an impact, a fall), N '
+         '(0: off).', 0.0, 1e4),
+    _rec('transient_error', 'double', 0.25,
+         'A tracking error |e| above this starts an episode (an effort the plant did not '
+         'apply), m/s (0: off).', 0.0, 1e3),
 )
+#: schema name -> RecoveryConfig field.
+RECOVERY_FIELDS = {s.name: 'enabled' if s.name == 'episode_recovery' else s.name
+                   for s in CONTROLLER_SCHEMA if s.group == 'recovery'}
 #: schema name -> StiffnessConfig field (k_max, k_s and force_filter_hz are shared).
 STIFFNESS_FIELDS = {s.name: 'enabled' if s.name == 'stiffness_estimation'
                     else s.name.removeprefix('stiffness_')

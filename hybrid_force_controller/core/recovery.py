@@ -1,0 +1,162 @@
+"""
+Fault episodes and the trusted estimate: what keeps theta_hat from running away (pure numpy).
+
+A real loop meets stalls it does not make: a scheduler hiccup, a driver that drops
+commands, a command watchdog that cuts the torque while the arm falls onto the workpiece.
+What follows is a transient the model does not explain (an impact, a fall, a surface
+pressed 40 N deep), and an adaptation law integrating it reads it as a model error:
+theta_hat ran from [1.30, 0.90] to [3.37, 2.78] in under a second after a 202 ms stall.
+:class:`Recovery` is the runtime's bookkeeping of such *episodes* (docs/design.md,
+"Recovery from stalls and drops"):
+
+* an episode begins on a stall the node sees in its own tick times, a restart (a
+  re-activation: the arm moved under the held effort), a contact loss, safe mode, a force
+  transient ``|f_n - f_d| > transient_force``, or a tracking error
+  ``|e| > transient_error``, which is how an effort the plant did not apply shows in the
+  arm's response (the arm falls while the law expects the commanded motion);
+* while it lasts, theta_hat holds the *trusted* estimate: adaptation (26) is frozen;
+* it ends after ``calm_time`` of calm: in contact, in the force loop, with
+  ``|f_n - f_d| < calm_force`` and ``|e| < calm_error``;
+* the trusted estimate is theta_hat of the last calm stretch in contact, updated on every
+  tick once calm has lasted ``calm_time``. Before the first calm stretch there is none:
+  the start-up is the transient adaptation is for, and nothing better is known, so an
+  episode then only counts (adaptation goes on, its error saturated as before).
+
+Time is an argument: the caller passes the tick's time; nothing here reads a clock.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+__all__ = ['EPISODE_KINDS', 'Recovery', 'RecoveryConfig', 'RecoveryConfigError']
+
+#: what starts an episode (the /diagnostics counters are ``episodes_<kind>``)
+EPISODE_KINDS = ('stall', 'restart', 'contact_loss', 'safe_mode', 'force_transient',
+                 'tracking_fault')
+
+
+class RecoveryConfigError(ValueError):
+    """An inconsistent recovery configuration."""
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """
+    The ``recovery`` group of the schema (module docstring).
+
+    Attributes
+    ----------
+    enabled : episodes freeze adaptation at the trusted estimate (false: only counted).
+    stall_periods : a gap between ticks longer than this many periods is a stall.
+    calm_time : calm this long ends an episode and makes theta_hat trusted, s.
+    calm_force : calm force error, N.
+    calm_error : calm tracking error ``|e|``, m/s.
+    transient_force : a force error above this starts an episode, N (0: off).
+    transient_error : a tracking error above this starts an episode, m/s (0: off).
+
+    """
+
+    enabled: bool = True
+    stall_periods: float = 10.0
+    calm_time: float = 0.5
+    calm_force: float = 0.2
+    calm_error: float = 0.02
+    transient_force: float = 3.0
+    transient_error: float = 0.25
+
+    def __post_init__(self) -> None:
+        values = (self.stall_periods, self.calm_time, self.calm_force, self.calm_error,
+                  self.transient_force, self.transient_error)
+        if not all(math.isfinite(v) and v >= 0.0 for v in values):
+            raise RecoveryConfigError(f'recovery settings must be finite and >= 0: {self}')
+        if self.stall_periods < 2.0:
+            raise RecoveryConfigError('stall_periods must be >= 2 (a late tick is no stall)')
+        for calm, transient, name in ((self.calm_force, self.transient_force, 'force'),
+                                      (self.calm_error, self.transient_error, 'error')):
+            if transient > 0.0 and not calm < transient:
+                raise RecoveryConfigError(f'calm_{name} must be below transient_{name}')
+
+
+class Recovery:
+    """
+    Episodes, their counts and the trusted theta_hat of one runtime.
+
+    ``p`` is the number of parameters. :meth:`begin` opens an episode and returns the
+    estimate to hold; :meth:`note` takes each tick's errors, :meth:`triggered` says
+    whether they start an episode at the next tick.
+    """
+
+    def __init__(self, p: int, cfg: RecoveryConfig) -> None:
+        self.cfg = cfg
+        self.counts = dict.fromkeys(EPISODE_KINDS, 0)
+        self.episode = ''  # the kind of the episode under way ('' when none)
+        self.t_begin = -math.inf
+        self.has_trusted = False
+        self.trusted = np.zeros(p)  # valid when has_trusted
+        self._calm_since = math.nan  # start of the current calm stretch (NaN: not calm)
+        self._df = self._e = 0.0  # the last tick's |f_n - f_d| (N) and |e| (m/s)
+
+    def configure(self, cfg: RecoveryConfig) -> None:
+        """Install a new configuration (a parameter set); the state is kept."""
+        self.cfg = cfg
+
+    @property
+    def frozen(self) -> bool:
+        """Say whether adaptation is frozen: an episode under way and a trusted estimate."""
+        return bool(self.episode) and self.has_trusted and self.cfg.enabled
+
+    def begin(self, kind: str, t: float) -> np.ndarray | None:
+        """
+        Open an episode of ``kind`` at time ``t`` (one already under way goes on).
+
+        Returns the trusted estimate theta_hat must take now, or None (nothing to restore:
+        no trusted estimate yet, recovery disabled, or an episode already under way).
+        """
+        self._calm_since = math.nan
+        if self.episode:
+            return None
+        self.episode, self.t_begin = kind, t
+        self.counts[kind] += 1
+        return self.trusted if self.frozen else None
+
+    def triggered(self) -> str:
+        """Return the kind of episode the last tick's errors start ('' for none)."""
+        cfg = self.cfg
+        if 0.0 < cfg.transient_force < self._df:
+            return 'force_transient'
+        if 0.0 < cfg.transient_error < self._e:
+            return 'tracking_fault'
+        return ''
+
+    def note(self, t: float, df: float, e: float, in_force_loop: bool,
+             theta_hat: np.ndarray) -> bool:
+        """
+        Note one tick at time ``t``; return True when an episode ended at it.
+
+        ``df = |f_n - f_d|`` (N), ``e = |e|`` (m/s); calm is ``in_force_loop`` (in
+        contact, running) with both below their calm bounds. A calm stretch of
+        ``calm_time`` ends the episode under way, or (with none) makes ``theta_hat`` the
+        trusted estimate.
+        """
+        self._df, self._e = df, e
+        cfg = self.cfg
+        if not (in_force_loop and df < cfg.calm_force and e < cfg.calm_error):
+            self._calm_since = math.nan
+            return False
+        if math.isnan(self._calm_since):
+            self._calm_since = t
+        if t - self._calm_since < cfg.calm_time:
+            return False
+        if self.episode:
+            self.episode = ''
+            return True
+        np.copyto(self.trusted, theta_hat)
+        self.has_trusted = True
+        return False
+
+    def forget(self) -> None:
+        """Drop the trusted estimate and any episode (a new model or parameter layout)."""
+        self.episode, self.has_trusted, self._calm_since = '', False, math.nan

@@ -110,16 +110,15 @@ class Recovery:
 
     def begin(self, kind: str, t: float) -> np.ndarray | None:
         """
-        Open an episode of ``kind`` at time ``t`` (one already under way goes on).
+        Open an episode of ``kind`` at time ``t`` (one already under way goes on, counted once).
 
         Returns the trusted estimate theta_hat must take now, or None (nothing to restore:
-        no trusted estimate yet, recovery disabled, or an episode already under way).
+        no trusted estimate yet, or recovery disabled).
         """
         self._calm_since = math.nan
-        if self.episode:
-            return None
-        self.episode, self.t_begin = kind, t
-        self.counts[kind] += 1
+        if not self.episode:
+            self.episode, self.t_begin = kind, t
+            self.counts[kind] += 1
         return self.trusted if self.frozen else None
 
     def triggered(self) -> str:

@@ -14,7 +14,10 @@ Shared helpers of the tests that run over real DDS.
   guards against a hang (no test asserts wall time).
 * :func:`parse_diagnostics`: a ``/diagnostics`` status as a dict with typed values;
 * :func:`stamp_s`: a message stamp in seconds; :class:`ForceLog`: the true normal force
-  (``sim/contact_wrench``) and the latest ``/diagnostics`` of each node, stamped.
+  (``sim/contact_wrench``) and the latest ``/diagnostics`` of each node, stamped, and
+  optionally the controller's ``~/theta_hat`` (stamped on reception, wall clock);
+* :class:`RealTimeRig`: the sim (masses 50 % off, its 0.1 s command watchdog) and the
+  controller in real time with ``config/params.yaml``, a force log and a parameter client.
 """
 from __future__ import annotations
 
@@ -39,7 +42,7 @@ _DOMAIN_OFFSETS = {
     'any_arm': 4, 'colcon_build': 5, 'demo': 6, 'recorder': 7, 'realtime': 8,
     'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
-    'discipline': 18, 'discipline_refused': 19, 'mujoco_ros': 30,
+    'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'mujoco_ros': 30,
 }
 
 
@@ -260,18 +263,33 @@ class ForceLog:
     """
 
     def __init__(self, spun: Spun, n_W: Sequence[float] = (0.0, -1.0, 0.0),
-                 name: str = 'force_log') -> None:
+                 name: str = 'force_log', theta_topic: str | None = None) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import WrenchStamped
         from rclpy.qos import QoSProfile
+        from std_msgs.msg import Float64MultiArray
         self.n_W = tuple(float(x) for x in n_W)
         self.lock = threading.Lock()
         self.force: list[tuple[float, float]] = []
+        self.theta: list[tuple[float, tuple[float, ...]]] = []
         self.diags: dict[str, dict[str, Any]] = {}
         self.node = spun.node(name)
         q = QoSProfile(depth=1000)
         self.node.create_subscription(WrenchStamped, 'sim/contact_wrench', self._on_force, q)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, q)
+        if theta_topic:
+            self.node.create_subscription(Float64MultiArray, theta_topic, self._on_theta, q)
+
+    def _on_theta(self, msg: Any) -> None:
+        with self.lock:
+            self.theta.append((time.time(), tuple(msg.data)))
+
+    def thetas(self) -> tuple[Any, Any]:
+        """Return the reception times (wall clock, s) and theta_hat rows, as numpy arrays."""
+        import numpy as np
+        with self.lock:
+            rows = list(self.theta)
+        return np.array([t for t, _ in rows]), np.array([th for _, th in rows])
 
     def _on_force(self, msg: Any) -> None:
         f = msg.wrench.force
@@ -308,3 +326,52 @@ class ForceLog:
         with self.lock:
             pairs = [(t, f) for t, f in self.force if t0 <= t <= t1]
         return (np.array([t for t, _ in pairs]), np.array([f for _, f in pairs]))
+
+
+CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller_node'
+SIM_MODULE = 'sim_node.sim_node'
+MASSES_OFF = ('-p', 'masses:=[0.65, 1.35]')
+
+
+class RealTimeRig:
+    """
+    Sim (masses 50 % off, ``command_timeout`` 0.1 s) and controller in real time.
+
+    With a :class:`ForceLog` (and theta_hat) and a parameter client of the controller;
+    ``ctrl_prefix`` runs the controller under a wrapper (``setpriv`` ...). Stopped by pid.
+    """
+
+    def __init__(self, tmp_path: Path, domain: int, ctrl_prefix: Sequence[str] = (),
+                 sim_args: Sequence[str] = MASSES_OFF) -> None:
+        from rclpy.parameter_client import AsyncParameterClient
+        self.sim = NodeProcess(SIM_MODULE, tmp_path / 'sim.log', domain, list(sim_args))
+        self.ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain)
+        if ctrl_prefix:
+            self.ctrl.command_override = [*ctrl_prefix, *self.ctrl.command[:3]]
+            self.ctrl.args = ['--params-file', str(self.ctrl.params_file)]
+        self.procs = [self.sim, self.ctrl]
+        self.spun = Spun(domain)
+        self.log = ForceLog(self.spun, theta_topic='hybrid_force_controller/theta_hat')
+        self.params = AsyncParameterClient(self.log.node, 'hybrid_force_controller')
+        self.t_touch = 0.0
+
+    def start(self) -> 'RealTimeRig':
+        from hybrid_force_controller.core.contact import in_contact
+        for p in self.procs:
+            p.start()
+        wait_for(lambda: self.log.latest_t() > 0.0 and in_contact(self.log.forces()[1][-1]),
+                 'the tool to touch the surface', alive=self.procs)
+        self.t_touch = self.log.latest_t()
+        return self
+
+    def close(self) -> None:
+        for p in self.procs:
+            p.stop()
+        self.spun.close()
+
+    def settled(self, f_d: float, hold_s: float = 0.3, tol: float = 0.1) -> bool:
+        """Say whether the last ``hold_s`` of true force is within ``tol`` of ``f_d``."""
+        import numpy as np
+        t = self.log.latest_t()
+        _, f = self.log.forces(t - hold_s, t)
+        return f.size > 10 and bool(np.all(np.abs(f - f_d) < tol))

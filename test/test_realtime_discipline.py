@@ -31,13 +31,9 @@ from hybrid_force_controller.ros.bench import storm_values
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
-from ros_helpers import domain_id, ForceLog, NodeProcess, Spun, wait_for, wait_future
+from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
 
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
-SIM = 'sim_node.sim_node'
-MASSES_OFF = ['-p', 'masses:=[0.65, 1.35]']
 STORM_HZ, STORM_S = 20.0, 5.0
 HOLD_LIMIT_MS = 20.0  # 20 periods: loose enough never to flake
 
@@ -54,44 +50,10 @@ def _policies(pid: int) -> dict[int, tuple[int, int]]:
     return out
 
 
-class _Rig:
-    """Sim + controller in real time, a force log and a parameter client; stopped by pid."""
-
-    def __init__(self, tmp_path: Path, domain: int, ctrl_prefix: list[str] | None = None):
-        self.sim = NodeProcess(SIM, tmp_path / 'sim.log', domain, MASSES_OFF)
-        self.ctrl = NodeProcess(CTRL, tmp_path / 'controller.log', domain)
-        if ctrl_prefix:
-            self.ctrl.command_override = [*ctrl_prefix, *self.ctrl.command[:3]]
-            self.ctrl.args = ['--params-file', str(self.ctrl.params_file)]
-        self.procs = [self.sim, self.ctrl]
-        self.spun = Spun(domain)
-        self.log = ForceLog(self.spun)
-        self.params = AsyncParameterClient(self.log.node, 'hybrid_force_controller')
-
-    def start(self) -> '_Rig':
-        for p in self.procs:
-            p.start()
-        wait_for(lambda: self.log.latest_t() > 0.0 and in_contact(self.log.forces()[1][-1]),
-                 'the tool to touch the surface', alive=self.procs)
-        self.t_touch = self.log.latest_t()
-        return self
-
-    def close(self) -> None:
-        for p in self.procs:
-            p.stop()
-        self.spun.close()
-
-    def settled(self, f_d: float, hold_s: float = 0.3, tol: float = 0.1) -> bool:
-        """Say whether the last ``hold_s`` of true force is within ``tol`` of ``f_d``."""
-        t = self.log.latest_t()
-        _, f = self.log.forces(t - hold_s, t)
-        return f.size > 10 and bool(np.all(np.abs(f - f_d) < tol))
-
-
 @pytest.fixture(scope='module')
 def storm(tmp_path_factory):
     """One run: settle, the storm, a k_d set (a new margin), settle again."""
-    rig = _Rig(tmp_path_factory.mktemp('discipline'), domain_id('discipline'))
+    rig = RealTimeRig(tmp_path_factory.mktemp('discipline'), domain_id('discipline'))
     try:
         rig.start()
         wait_for(lambda: rig.settled(1.0), 'the force to settle at 1 N', alive=rig.procs)
@@ -166,7 +128,7 @@ def test_the_control_thread_runs_at_sched_fifo_above_every_other_thread(storm):
 
 def test_a_refused_priority_warns_once_and_the_loop_runs_on(tmp_path):
     drop = ['setpriv', '--bounding-set', '-sys_nice', '--inh-caps', '-sys_nice']
-    rig = _Rig(tmp_path, domain_id('discipline_refused'), ctrl_prefix=drop)
+    rig = RealTimeRig(tmp_path, domain_id('discipline_refused'), ctrl_prefix=drop)
     try:
         rig.start()  # it touches the surface (the loop runs; tracking is bench's business)
         sim0 = rig.log.fresh_diag('sim', rig.procs)['commands']

@@ -76,6 +76,7 @@ class ControllerRuntime:
         self.counters = dict.fromkeys(_COUNTERS, 0)
         self.mode, self.status = Mode.WAITING, 'waiting for inputs'
         self.last_safe_reason = ''
+        self.last_stall_s = 0.0  # the gap of the last stall, s
         self._in = LatestInputs(model, params.runtime, self.counters)
         self._limiter = EffortLimiter(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
@@ -361,6 +362,7 @@ class ControllerRuntime:
         if self.mode == Mode.WAITING or not gap > self.recovery.cfg.stall_periods * self._period:
             return False
         self.counters['stalls'] += 1
+        self.last_stall_s = gap
         self._begin('stall', t)
         return True
 

@@ -17,7 +17,8 @@ _LEVEL = {Mode.RUNNING: DiagnosticStatus.OK, Mode.WAITING: DiagnosticStatus.WARN
 # counters whose increase since the last status makes it at least WARN (a fault shorter
 # than the 1 s between two statuses is still reported)
 EVENT_COUNTERS = ('joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
-                  'safe_mode_entries', 'approach_entries')
+                  'safe_mode_entries', 'approach_entries', 'stalls')
+EPISODE_WARN_S = 5.0  # an episode this long (adaptation frozen) is reported
 
 
 def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
@@ -36,6 +37,14 @@ def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
         out.append(f'was in safe mode: {runtime.last_safe_reason}')
     if new_events.get('approach_entries', 0):
         out.append('contact was lost')
+    if new_events.get('stalls', 0):
+        out.append(f"the loop stalled {new_events['stalls']} times (last "
+                   f'{runtime.last_stall_s * 1e3:.0f} ms without a tick)')
+    rec = runtime.recovery
+    age = runtime.state_stamp - rec.t_begin
+    if rec.episode and age > EPISODE_WARN_S:
+        out.append(f'fault episode ({rec.episode}) for {age:.0f} s: theta_hat held at the '
+                   'trusted estimate until calm returns')
     margin_ms = float(extra.get('delay_margin_ms', math.inf))
     delay_ms = float(extra.get('delay_p99_ms', math.nan))
     if math.isfinite(delay_ms) and delay_ms + 1.0 > 0.5 * margin_ms:  # +1 ms: plant side
@@ -81,6 +90,7 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                   **runtime.counters, 'last_input_fault': runtime.last_fault,
                   'last_safe_reason': runtime.last_safe_reason,
                   'theta_hat': ', '.join(f'{v:.4g}' for v in runtime.theta_hat),
+                  **_recovery_values(runtime),
                   **{f'stiffness_{k}': (f'{v:.4g}' if isinstance(v, float) else v)
                      for k, v in runtime.stiffness_status()._asdict().items()}}
     values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
@@ -90,3 +100,12 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                    for k, v in extra.items() if k != 'warnings'})
     status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])
+
+
+def _recovery_values(runtime: ControllerRuntime) -> dict[str, object]:
+    """Return the fault episodes (core/recovery.py): the one under way, counts, trusted."""
+    rec = runtime.recovery
+    trusted = ', '.join(f'{v:.4g}' for v in rec.trusted) if rec.has_trusted else 'none'
+    return {'episode': rec.episode or 'none', 'theta_trusted': trusted,
+            'adaptation_frozen': rec.frozen, 'last_stall_ms': f'{runtime.last_stall_s * 1e3:.4g}',
+            **{f'episodes_{k}': v for k, v in rec.counts.items()}}

@@ -1,0 +1,126 @@
+"""
+Recovery from stalls over real DDS, in real time (issue 16).
+
+The sim (masses 50 % off, ``command_timeout`` 0.1 s: zero effort after it, as a torque-
+controlled arm's watchdog) and the controller with ``config/params.yaml``. Once the force
+has held at f_d, the controller process is frozen (SIGSTOP, then SIGCONT) for 150, 300 and
+500 ms, each longer than the watchdog, so the arm falls onto the surface each time; then,
+with the surface dropped 3 cm, it is frozen for 300 ms during the approach.
+
+Checks cover the whole run after each release, with thresholds loose enough never to flake
+on a loaded 2-core machine (about 3 times issue 16's targets); the exact figures are what
+``bench --ros --freezes 3 --freeze-ms MS`` reports (docs/results.md).
+"""
+from __future__ import annotations
+
+import signal
+import time
+
+from hybrid_force_controller.tools.recovery_figures import recovery_figures
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
+
+
+FREEZES_MS = (150.0, 300.0, 500.0)
+WINDOW_S = 6.0
+F_D = 1.0
+P0 = np.array([1.0, 1.6, 0.0])  # the tool at q0 (config/params.yaml), on the surface
+N_W = np.array([0.0, -1.0, 0.0])
+
+
+def _freeze(rig: RealTimeRig, ms: float) -> tuple[float, float]:
+    """SIGSTOP the controller for ``ms``; return the wall times of the stop and the release."""
+    t_stop = time.time()
+    rig.ctrl.signal(signal.SIGSTOP)
+    time.sleep(ms * 1e-3)  # the freeze itself (the stimulus), not a wait on a condition
+    rig.ctrl.signal(signal.SIGCONT)
+    return t_stop, time.time()
+
+
+def _diag(rig: RealTimeRig, name: str) -> dict:
+    return rig.log.fresh_diag(name, rig.procs)
+
+
+def _theta_steady(rig: RealTimeRig, span_s: float = 2.0, tol: float = 0.01) -> bool:
+    """Say whether theta_hat moved less than ``tol`` (relative) over the last ``span_s``."""
+    t, th = rig.log.thetas()
+    if t.size < 10 or t[-1] - t[0] < span_s:
+        return False
+    recent = th[t >= t[-1] - span_s]
+    return bool(np.all(np.ptp(recent, axis=0) <= tol * np.abs(recent[-1])))
+
+
+def _run_past(rig: RealTimeRig, t: float) -> None:
+    wait_for(lambda: rig.log.latest_t() > t, f'the force log past {t:.1f}', alive=rig.procs)
+
+
+@pytest.fixture(scope='module')
+def run(tmp_path_factory):
+    """One real-time run: theta_hat learned, three freezes, a freeze during an approach."""
+    rig = RealTimeRig(tmp_path_factory.mktemp('stalls'), domain_id('realtime_stalls'))
+    try:
+        rig.start()  # the masses are learned in about 8 s; then theta_hat holds still
+        wait_for(lambda: rig.settled(F_D, hold_s=1.0) and _theta_steady(rig)
+                 and rig.log.diag('hybrid_force_controller').get('theta_trusted', 'none')
+                 != 'none', 'theta_hat learned and trusted', alive=rig.procs)
+        sim0, freezes = _diag(rig, 'sim'), []
+        for ms in FREEZES_MS:
+            wait_for(lambda: rig.settled(F_D, hold_s=1.0), 'calm before the freeze',
+                     alive=rig.procs)
+            freezes.append((ms, *_freeze(rig, ms)))
+            _run_past(rig, freezes[-1][2] + WINDOW_S + 0.2)
+        sim1, ctrl1 = _diag(rig, 'sim'), _diag(rig, 'hybrid_force_controller')
+        drop = rig.params.__class__(rig.log.node, 'sim').set_parameters(
+            [Parameter('surface_point', value=(P0 + 0.03 * N_W).tolist())])
+        assert wait_future(drop).results[0].successful
+        t_drop = time.time()
+        wait_for(lambda: rig.log.forces(t_drop)[1].size > 50, 'forces after the drop',
+                 alive=rig.procs)
+        wait_for(lambda: rig.log.latest_t() > t_drop + 0.4, 'into the approach',
+                 alive=rig.procs)
+        approach = (t_drop, *_freeze(rig, 300.0))
+        _run_past(rig, approach[2] + 3.0)
+        yield {'rig': rig, 'freezes': freezes, 'sim0': sim0, 'sim1': sim1, 'ctrl1': ctrl1,
+               'approach': approach}
+    finally:
+        rig.close()
+
+
+def _figures(run, k: int) -> dict:
+    rig = run['rig']
+    ms, t_stop, t_release = run['freezes'][k]
+    t, f = rig.log.forces(t_stop - 1.0, t_release + WINDOW_S)
+    t_th, th = rig.log.thetas()
+    fig = recovery_figures(t, f, t_stop, t_release, F_D, t_th, th, WINDOW_S)
+    print(f'freeze {ms:.0f} ms: {fig}')
+    return fig
+
+
+def test_every_freeze_drops_the_arm_on_the_plant_watchdog(run):
+    timeouts = run['sim1']['command_timeouts'] - run['sim0']['command_timeouts']
+    assert timeouts >= len(FREEZES_MS), run['rig'].sim.tail()
+    assert run['ctrl1']['episodes_stall'] >= len(FREEZES_MS)  # seen in its own tick times
+    assert run['ctrl1']['stalls'] >= len(FREEZES_MS)
+
+
+@pytest.mark.parametrize('k', range(len(FREEZES_MS)), ids=[f'{m:.0f}ms' for m in FREEZES_MS])
+def test_the_force_comes_back_and_theta_hat_holds(run, k):
+    """Targets 1 s, 10 %, 0.05 N (issue 16); asserted at 3 s, 25 %, 0.15 N (a loaded machine)."""
+    fig = _figures(run, k)
+    assert fig['peak_force_n'] > 3.0, fig  # the arm fell while the torque was off
+    assert fig['back_s'] <= 3.0, fig
+    assert fig['theta_change'] <= 0.25, fig
+    assert fig['rms_force_error_n'] <= 0.15, fig
+
+
+def test_a_freeze_during_an_approach_ends_on_the_surface(run):
+    """The surface dropped 3 cm; frozen 300 ms into the approach: in contact <= 2.5 s after."""
+    rig = run['rig']
+    t_drop, _, t_release = run['approach']
+    t, f = rig.log.forces(t_drop)
+    assert (f[t < t_release] < 0.05).any(), 'the drop did not break contact'
+    back = (t > t_release) & (f > 0.1)
+    assert back.any() and t[np.argmax(back)] - t_release <= 2.5
+    assert run['ctrl1']['lifecycle_state'] == 'active'

@@ -34,6 +34,7 @@ from ..tools.offline_bench import offline_figures
 __all__ = ['main', 'ros_loop_figures', 'storm_values']
 
 WARM_UP_TIMEOUT_S = 90.0
+LONG_FREEZE_S = 0.1  # the sim's command_timeout: a longer freeze drops the arm
 
 
 class _Diagnostics:
@@ -135,15 +136,26 @@ def _warm_up(diag: _Diagnostics, procs: dict[str, subprocess.Popen]) -> None:
     time.sleep(2.0)  # the first second of running
 
 
-def _freeze(proc: subprocess.Popen, count: int, hold_s: float) -> list[float]:
-    """SIGSTOP the process for ``hold_s`` ``count`` times, 2 s apart; wall times of each."""
+def _freeze(proc: subprocess.Popen, count: int, hold_s: float,
+            tracking: TrackingMeter) -> list[tuple[float, float]]:
+    """
+    SIGSTOP the process for ``hold_s`` ``count`` times; wall times of each stop and release.
+
+    Freezes shorter than the sim's watchdog come 2 s apart; longer ones (the arm falls) wait
+    for theta_hat to be learned and come 7 s apart (6 s of recovery figures each).
+    """
+    long = hold_s >= LONG_FREEZE_S
+    deadline = time.monotonic() + WARM_UP_TIMEOUT_S
+    while long and count and not tracking.theta_steady() and time.monotonic() < deadline:
+        time.sleep(0.2)
     times = []
     for _ in range(count):
-        time.sleep(2.0)
-        times.append(time.time())
+        time.sleep(7.0 if long and times else 2.0)
+        t_stop = time.time()
         proc.send_signal(19)  # SIGSTOP: a scheduler hiccup of hold_s
         time.sleep(hold_s)
         proc.send_signal(18)  # SIGCONT
+        times.append((t_stop, time.time()))
     return times
 
 
@@ -220,7 +232,8 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
         t0 = time.monotonic()
         meter.start()
         t_stamp0 = diag.tracking.latest
-        frozen = _freeze(procs['controller'], cfg['freezes'], cfg['freeze_ms'] * 1e-3)
+        frozen = _freeze(procs['controller'], cfg['freezes'], cfg['freeze_ms'] * 1e-3,
+                         diag.tracking)
         if cfg['param_storm'] > 0.0:
             time.sleep(2.0)
             extra = _param_storm(diag, cfg['param_storm'], 5.0)
@@ -257,11 +270,11 @@ def _figures(cfg, diag, cpu, sim0, sim1, elapsed, ctrl) -> dict[str, Any]:
 
 def _tracking(diag, t_stamp0, t_end, frozen, storm) -> dict[str, Any]:
     tracking = diag.tracking.figures(t_stamp0, t_end)
-    for k, t in enumerate(frozen):  # each freeze: the 6 s after it
-        after = diag.tracking.figures(t, t + 6.0)
-        tracking[f'freeze{k}_max_force_n'] = after.get('max_force_n', float('nan'))
+    for k, (t_stop, t_release) in enumerate(frozen):  # each freeze: the 6 s after it
+        after = diag.tracking.figures(t_stop, t_release + 6.0)
         tracking[f'freeze{k}_contact_lost_s'] = after['contact_lost_s']
-        tracking[f'freeze{k}_settle_s'] = diag.tracking.settle_time(t, 1.0, 0.1)
+        for key, v in diag.tracking.recovery(t_stop, t_release, 1.0).items():
+            tracking[f'freeze{k}_{key}'] = round(v, 4)
     if storm:
         tracking['storm_sets'] = storm['storm_sets']
         tracking['storm_sets_successful'] = storm['storm_sets_successful']
@@ -305,7 +318,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--masses', default='[0.65, 1.35]',
                     help="the sim's link masses (config/params.yaml arm: 1.3, 0.9 kg)")
     ap.add_argument('--freezes', type=int, default=0,
-                    help='SIGSTOP the controller this many times (2 s apart)')
+                    help='SIGSTOP the controller this many times (2 s apart; 7 s apart, once '
+                    'theta_hat is learned, when --freeze-ms is 100 or more)')
     ap.add_argument('--freeze-ms', type=float, default=30.0, help='length of each freeze, ms')
     ap.add_argument('--one-core', action='store_true',
                     help='pin the sim and the controller to CPU 0 (a slow PC)')

@@ -1,20 +1,23 @@
 """
 Tracking figures of a running loop, from its topics (for ``bench --ros``).
 
-A :class:`TrackingMeter` subscribes the controller's ``~/x`` and ``~/x_desired`` and the
-sim's ``sim/contact_wrench`` (the true force) and, over a window of stamps, reports the
-RMS tangential position error, the RMS normal force error and the time out of contact
-(the core contact predicate on the true force), like ``report`` does from a bag.
+A :class:`TrackingMeter` subscribes the controller's ``~/x``, ``~/x_desired`` and
+``~/theta_hat`` and the sim's ``sim/contact_wrench`` (the true force) and, over a window of
+stamps, reports the RMS tangential position error, the RMS normal force error and the time
+out of contact (the core contact predicate on the true force), like ``report`` does from a
+bag, and the figures of a recovery from a freeze (tools/recovery_figures.py).
 """
 from __future__ import annotations
 
 import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
 
 from ..core.contact import in_contact
+from ..tools.recovery_figures import recovery_figures
 
 __all__ = ['TrackingMeter']
 
@@ -28,17 +31,44 @@ class TrackingMeter:
 
     def __init__(self, node: Any, n_W: np.ndarray, f_d: float) -> None:
         from geometry_msgs.msg import PointStamped, WrenchStamped
+        from std_msgs.msg import Float64MultiArray
         self.n_W = np.asarray(n_W, dtype=float)
         self.f_d_steps = [(-math.inf, f_d)]  # (from stamp, f_d): a parameter storm changes it
         self.lock = threading.Lock()
         self.x: dict[float, np.ndarray] = {}
         self.x_d: dict[float, np.ndarray] = {}
         self.f: list[tuple[float, float]] = []
+        self.theta: list[tuple[float, tuple[float, ...]]] = []  # (wall time of reception, row)
         node.create_subscription(PointStamped, 'hybrid_force_controller/x',
                                  lambda m: self._point(self.x, m), 1000)
         node.create_subscription(PointStamped, 'hybrid_force_controller/x_desired',
                                  lambda m: self._point(self.x_d, m), 1000)
         node.create_subscription(WrenchStamped, 'sim/contact_wrench', self._on_force, 1000)
+        node.create_subscription(Float64MultiArray, 'hybrid_force_controller/theta_hat',
+                                 self._on_theta, 1000)
+
+    def _on_theta(self, msg: Any) -> None:
+        with self.lock:
+            self.theta.append((time.time(), tuple(msg.data)))
+
+    def theta_steady(self, span_s: float = 2.0, tol: float = 0.01) -> bool:
+        """Say whether theta_hat moved less than ``tol`` (relative) over the last ``span_s``."""
+        with self.lock:
+            rows = [th for t, th in self.theta if t >= time.time() - span_s]
+            spanned = bool(self.theta) and self.theta[0][0] <= time.time() - span_s
+        if not spanned or len(rows) < 10:
+            return False
+        th = np.array(rows)
+        return bool(np.all(np.ptp(th, axis=0) <= tol * np.abs(th[-1])))
+
+    def recovery(self, t_stop: float, t_release: float, f_d: float) -> dict[str, float]:
+        """Return the figures of the recovery from a freeze (tools/recovery_figures.py)."""
+        with self.lock:
+            forces = np.array(self.f)
+            thetas = list(self.theta)
+        t_th = np.array([t for t, _ in thetas])
+        th = np.array([row for _, row in thetas])
+        return recovery_figures(forces[:, 0], forces[:, 1], t_stop, t_release, f_d, t_th, th)
 
     def _point(self, store: dict, msg: Any) -> None:
         p = msg.point

@@ -67,6 +67,7 @@ def storm(tmp_path_factory):
         wait_for(lambda: rig.settled(1.5), 'the force to settle at the last f_d, 1.5 N',
                  alive=rig.procs)
         k_d = wait_future(rig.params.set_parameters([Parameter('k_d', value=45.0)])).results[0]
+        assert k_d.successful, k_d.reason  # (a refusal would leave the margin as it was)
         wait_for(lambda: abs(rig.log.diag('hybrid_force_controller').get('delay_margin_ms', 0)
                              - ctrl0['delay_margin_ms']) > 0.1,
                  'a new delay margin on /diagnostics', alive=rig.procs)

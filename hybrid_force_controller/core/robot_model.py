@@ -27,7 +27,7 @@ from .parameter_sets import make_parameter_set, ParameterSetError
 __all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-_SQRT2 = math.sqrt(2.0)
+_POLARISE = np.array(((1.0, 0.125), (math.sqrt(2.0), -math.sqrt(2.0) / 8.0)))  # (R2)
 
 
 class ModelError(ValueError):
@@ -220,9 +220,9 @@ class RobotModel:
         e.g. ``link_masses``).
         """
         model, data = self.model, self.data
-        w_8 = 0.125 * qdot_r
-        R = (2.0 * pin.computeJointTorqueRegressor(model, data, q, qdot + w_8, qddot_r)
-             - pin.computeJointTorqueRegressor(model, data, q, _SQRT2 * (qdot - w_8), qddot_r))
+        V = _POLARISE.dot((qdot, qdot_r))  # rows v + w/8 and sqrt2 (v - w/8)
+        R = (2.0 * pin.computeJointTorqueRegressor(model, data, q, V[0], qddot_r)
+             - pin.computeJointTorqueRegressor(model, data, q, V[1], qddot_r))
         if not self._has_pi_0:
             return R.dot(self._P), None
         Y_tau_0 = R.dot(self._P_pi_0)  # [P, pi_0]: Y and tau_0 in one product

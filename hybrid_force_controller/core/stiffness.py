@@ -66,7 +66,6 @@ __all__ = ['MIN_SAMPLES', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessE
            'StiffnessEstimator']
 
 MIN_SAMPLES = 20.0  # effective exciting samples before the estimate may be valid (S6)
-_NO_DT = (-1.0, 0.0, 0.0, 0.0, 0.0)  # no dt cached by StiffnessEstimator._factors
 CHANGE_TIME = 0.02  # T_c of (S9), s: |eps| must exceed delta_c by this much force x time
 
 
@@ -172,7 +171,7 @@ class StiffnessEstimator:
         if not isinstance(config, StiffnessConfig):
             raise StiffnessConfigError(f'expected a StiffnessConfig, got {type(config).__name__}')
         self.config = config
-        self._dt_cache = _NO_DT  # dt, lam (S3), alpha of x_bar (S5), a (S0), lag of (S7)
+        self._dt_cache = (-1.0,) * 5  # dt, lam (S3), alpha of x_bar (S5), a (S0), lag of (S7)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -233,7 +232,7 @@ class StiffnessEstimator:
         if not isinstance(config, StiffnessConfig):
             raise StiffnessConfigError(f'expected a StiffnessConfig, got {type(config).__name__}')
         old, k_hat = self.config, self.k_hat
-        self.config, self._dt_cache = config, _NO_DT
+        self.config, self._dt_cache = config, (-1.0,) * 5
         if config.k_hat0 != old.k_hat0:
             self.forget_data(config.prior)
         elif (config.k_min, config.k_max) != (old.k_min, old.k_max):
@@ -339,7 +338,7 @@ class StiffnessEstimator:
             return self.k_hat
         deviation = abs(x_n - self._x_bar)
         self._x_bar += alpha * (x_n - self._x_bar)
-        self.excitation_n = (self.k_hat if self.valid else self.config.k_max) * deviation
+        self.excitation_n = (self.k_hat if self._valid else self.config.k_max) * deviation
         if self.excitation_n < self.config.excitation or deviation == 0.0:  # (S5)
             return self.k_hat
         self.excited = True
@@ -350,7 +349,7 @@ class StiffnessEstimator:
     def _changed(self, f_n: float, x_n: float, dt: float) -> bool:
         """(S9) on one in-contact sample; only a valid estimate is tested."""
         c = self.config
-        if c.change_force == 0.0 or not self.valid:
+        if c.change_force == 0.0 or not self._valid:
             self._cusum = 0.0
             return False
         eps = f_n - (c.k_max * (x_n - self._x_ref) * self._kappa + self._b)
@@ -378,8 +377,7 @@ class StiffnessEstimator:
         self.saturated = bool(clipped != kappa)
         self._r_uu, self._r_ub, self._r_bb = r_uu, r_ub, r_bb
         post = f_n - (u * clipped + b)
-        self._w = lam * self._w + 1.0
-        self._s2_sum = lam * self._s2_sum + post * post
+        self._w, self._s2_sum = lam * self._w + 1.0, lam * self._s2_sum + post * post
         self._refresh_validity()
 
     # ------------------------------------------------------------------ k_s
@@ -393,12 +391,8 @@ class StiffnessEstimator:
         lag = self._factors(dt)[4]
         c = self.config
         k_hat, k_s = self.k_hat, self._k_s
-        if not c.enabled:
-            target = k_s
-        elif k_hat > k_s or self._valid:
-            target = k_hat
-        else:
-            target = min(max(k_s, c.k_min), c.k_max)
+        target = (k_s if not c.enabled else k_hat if k_hat > k_s or self._valid
+                  else min(max(k_s, c.k_min), c.k_max))
         step = math.log(target / k_s) * lag
         step = min(max(step, -c.k_s_rate_down * dt), c.k_s_rate_up * dt)
         self._k_s = k_s * math.exp(step)

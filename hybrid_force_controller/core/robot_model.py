@@ -210,14 +210,14 @@ class RobotModel:
 
         Two calls of pinocchio's ``computeJointTorqueRegressor`` R, with ``R(q, v, a) pi =
         M a + b(v, v) + g``. C is the Christoffel matrix, so ``C(q, v) w = b(v, w)`` with b
-        the symmetric bilinear velocity term of the RNEA, and by polarisation (the b(v, v)
-        and b(w, w) terms cancel, M a and g appear 2 - 1 = 1 times)::
+        the symmetric bilinear velocity term of the RNEA. By polarisation, ``2 b(v + w/8,
+        v + w/8) - 2 b(v - w/8, v - w/8) = b(v, w)`` (the b(v, v) and b(w, w) terms cancel)
+        while M a and g appear 2 - 1 = 1 times, so (v = qdot, w = qdot_r, a = qddot_r)::
 
             Y = (2 R(q, v + w/8, a) - R(q, sqrt2 (v - w/8), a)) P                   (R2)
 
-        gives ``M a + b(v, w) + g`` (v = qdot, w = qdot_r, a = qddot_r). ``tau_0 = R pi_0``
-        is the torque of the known part of the model (None when the set has no known part,
-        e.g. ``link_masses``).
+        gives ``Y theta = M a + C(q, v) w + g``. ``tau_0 = R pi_0`` is the torque of the known
+        part of the model (None when the set has no known part, e.g. ``link_masses``).
         """
         model, data = self.model, self.data
         V = _POLARISE.dot((qdot, qdot_r))  # rows v + w/8 and sqrt2 (v - w/8)

@@ -134,7 +134,7 @@ def small_inverse(A: np.ndarray) -> np.ndarray:
         (a, b), (c, d) = A.tolist()
         det = a * d - b * c
         if det == 0.0:
-            raise np.linalg.LinAlgError('singular matrix')
+            raise np.linalg.LinAlgError('singular matrix (a singular pose)')
         return np.array(((d / det, -b / det), (-c / det, a / det)))
     if A.shape == (3, 3):
         (a, b, c), (d, e, f), (g, h, i) = A.tolist()
@@ -143,7 +143,7 @@ def small_inverse(A: np.ndarray) -> np.ndarray:
                (d * h - e * g, b * g - a * h, a * e - b * d))
         det = a * adj[0][0] + b * adj[1][0] + c * adj[2][0]
         if det == 0.0:
-            raise np.linalg.LinAlgError('singular matrix')
+            raise np.linalg.LinAlgError('singular matrix (a singular pose)')
         return np.array(adj) / det
     return np.linalg.inv(A)
 

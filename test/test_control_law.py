@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 from hybrid_force_controller.core.control_law import (adapt_theta, ControlError,
-                                                      HybridForceController)
+                                                      HybridForceController, small_inverse)
 from hybrid_force_controller.core.effort import EffortLimiter
 from hybrid_force_controller.core.environment import ElasticSurface
 from hybrid_force_controller.core.params import (build_params, check_stability,
@@ -309,6 +309,26 @@ def test_max_effort_rate_limits_the_per_tick_change(model):
     assert np.all(np.abs(taus) <= limits)
     limited.reset()  # a restart does not rate-limit against the last command
     np.testing.assert_array_equal(limited(free_taus[0])[0], free_taus[0])
+
+
+def test_limiter_reports_no_saturation_within_the_limits():
+    limiter = EffortLimiter(np.array([30.0, 20.0]))
+    tau = np.array([29.0, -19.5])
+    out, saturated = limiter(tau)
+    np.testing.assert_array_equal(out, tau)
+    assert saturated is False
+    assert limiter(np.array([29.0, -20.5]))[1] is True
+
+
+@pytest.mark.parametrize('size', [2, 3, 4])
+def test_small_inverse_matches_numpy(size):
+    """The closed forms (2 x 2, 3 x 3) and the general case invert like numpy.linalg.inv."""
+    rng = np.random.default_rng(size)
+    for _ in range(20):
+        A = rng.normal(size=(size, size)) + 2.0 * np.eye(size)
+        np.testing.assert_allclose(small_inverse(A), np.linalg.inv(A), rtol=1e-12, atol=1e-12)
+    with pytest.raises(np.linalg.LinAlgError):
+        small_inverse(np.ones((size, size)))
 
 
 # ---------------------------------------------------------------- bad input

@@ -6,7 +6,8 @@ import math
 from hybrid_force_controller.core.environment import (ElasticSurface, f_W_from_sensor_wrench,
                                                       sensor_wrench_from_f_W, SurfaceError)
 from hybrid_force_controller.core.filters import LowPassFilter
-from hybrid_force_controller.core.reference import blend_start, Reference, SineReference
+from hybrid_force_controller.core.reference import (blend_start, BlendedReference, Reference,
+                                                    SineReference)
 import numpy as np
 import pytest
 
@@ -242,3 +243,16 @@ def test_blend_start_midway_and_disabled():
     ref = sine(0.3)
     assert blend_start(ref, offset, 0.3, 0.0) is ref  # t_blend = 0: no blend
     assert isinstance(blend_start(ref, offset, 0.3, 1.0), Reference)
+
+
+def test_blended_reference_equals_blend_start_of_the_sine():
+    """The run's reference (blend on stacked rows) equals blend_start of the sine, to rounding."""
+    sine = SineReference(np.array([1.0, 1.6, 0.2]), np.array([0.1, -0.05, 0.02]), 2.3)
+    ref = BlendedReference(sine, np.array([0.0, -1.0, 0.0]), 2.0)
+    ref.start_from(0.5, np.array([0.8, 1.7, 0.1]), np.array([0.3, -0.2, 0.05]))
+    for tau in (0.2, 0.5, 0.9, 1.7, 2.49, 2.5, 3.0):
+        expected = blend_start(sine(tau), ref.dp_W, tau - 0.5, 2.0, ref.dv_W)
+        for a, b in zip(ref(tau), expected):
+            np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-15)
+    for a, b in zip(ref(2.5), sine(2.5)):  # the blend is over: the sine itself
+        np.testing.assert_array_equal(a, b)

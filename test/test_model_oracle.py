@@ -175,6 +175,31 @@ def test_regressors_match_closed_form(arm2, k):
     _assert_close(Y_x @ ARM.theta, M_x @ rdot + C_x @ r + g_x, what='Y_x theta')
 
 
+def _regressor_three_calls(model, q, v, w, a):
+    """Return the Slotine-Li regressor [R(v+w, 4a) - R(v-w, 0)]/4 + R(0, 0): three RNEA calls."""
+    def R(v_, a_):
+        return pin.computeJointTorqueRegressor(model.model, model.model.createData(), q, v_, a_)
+    z = np.zeros(model.n)
+    R3 = 0.25 * (R(v + w, 4.0 * a) - R(v - w, z)) + R(z, z)
+    return R3 @ model.parameter_set.P, R3 @ model.parameter_set.pi_0
+
+
+@pytest.mark.parametrize('arm,parameter_set', [('two_link', 'link_masses'), ('two_link', 'full'),
+                                               ('panda', 'link_masses'), ('panda', 'payload')])
+def test_two_call_regressor_equals_three_call_form(arm, parameter_set):
+    """(R2) of regressor_affine equals the 3-call polarisation form to 1e-12 at random states."""
+    from hybrid_force_controller.core.arm7 import panda_model
+    model = (RobotModel.from_urdf(parameter_set=parameter_set) if arm == 'two_link'
+             else panda_model(parameter_set))
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q, v, w, a = (rng.uniform(-2.0, 2.0, model.n) for _ in range(4))
+        Y, tau_0 = model.regressor_affine(q, v, w, a)
+        Y3, tau_03 = _regressor_three_calls(model, q, v, w, a)
+        _assert_close(Y, Y3, tol=1e-12, what='Y_q')
+        _assert_close(0.0 * tau_03 if tau_0 is None else tau_0, tau_03, tol=1e-12, what='tau_0')
+
+
 def test_closed_form_regressor_is_consistent():
     """The hand-derived Y_x theta equals M_x rdot + C_x r + g_x of the closed form itself."""
     for q, qdot, r, rdot in STATES_2LINK:

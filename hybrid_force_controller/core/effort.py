@@ -21,13 +21,13 @@ class EffortLimiter:
     """
 
     def __init__(self, limits: np.ndarray, max_rate: float = 0.0) -> None:
-        self.limits = np.asarray(limits, dtype=float)
-        self.max_rate = float(max_rate)
+        self.configure(limits, max_rate)
         self._last: np.ndarray | None = None
 
     def configure(self, limits: np.ndarray, max_rate: float) -> None:
         """Install new limits (a parameter set); the last command is kept for the rate limit."""
         self.limits, self.max_rate = np.asarray(limits, dtype=float), float(max_rate)
+        self._lower = -self.limits
 
     def reset(self) -> None:
         self._last = None
@@ -38,9 +38,9 @@ class EffortLimiter:
         if self.max_rate > 0.0 and self._last is not None:
             out = np.minimum(np.maximum(out, self._last - self.max_rate),
                              self._last + self.max_rate)
-        out = np.minimum(np.maximum(out, -self.limits), self.limits)
+        out = np.minimum(np.maximum(out, self._lower), self.limits)
         self._last = out
-        return out, bool((out != tau).any())
+        return out, out.tolist() != tau.tolist()
 
 
 class SafeHold:

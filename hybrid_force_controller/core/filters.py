@@ -43,9 +43,11 @@ class LowPassFilter:
         """
         Filter one sample taken ``dt`` seconds after the previous one.
 
-        Returns False (and keeps the state) when ``u`` holds NaN/Inf.
+        Returns False (and keeps the state) when ``u`` holds NaN/Inf. The few components are
+        filtered as floats (each numpy operation on them would cost more than all of them).
         """
-        if not math.isfinite(u.sum()):
+        u_list = u.tolist()
+        if not math.isfinite(sum(u_list)):
             return False
         if not self._ready or self.cutoff_hz <= 0.0:
             self._y[:] = u
@@ -54,5 +56,6 @@ class LowPassFilter:
         if dt != self._dt:
             self._dt = dt
             self._a = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * max(dt, 0.0))
-        self._y += self._a * (u - self._y)
+        a = self._a
+        self._y[:] = [y + a * (x - y) for x, y in zip(u_list, self._y.tolist())]
         return True

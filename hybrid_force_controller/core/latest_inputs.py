@@ -14,7 +14,6 @@ from typing import Sequence
 
 import numpy as np
 
-from .environment import f_W_from_sensor_wrench
 from .filters import LowPassFilter
 from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
                      WrenchSample)
@@ -101,7 +100,7 @@ class LatestInputs:
             R = (None if frame == self.model.base_link else self.kin().R_W_ee
                  if frame == self.model.end_effector_link
                  else self.model.frame_rotation(self.state.q, frame))
-            f_W = -w.F_S if R is None else f_W_from_sensor_wrench(R, w.F_S)
+            f_W = -w.F_S if R is None else -R.dot(w.F_S)  # environment.f_W_from_sensor_wrench
             if self._weight_W is not None:  # the sensor feels the tool's weight: remove it
                 f_W = f_W + self._weight_W
             gap = w.t - self._wrench_prev_t

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -25,12 +26,35 @@ class SineReference:
     amplitude_W: np.ndarray
     omega: float
 
+    def __post_init__(self) -> None:
+        # rows (x_d, xdot_d, xddot_d) = K (1, sin wt, cos wt): one product per evaluation
+        w, a = self.omega, np.asarray(self.amplitude_W, dtype=float)
+        K = np.zeros((3, 3, 3))
+        K[0, :, 0], K[0, :, 1], K[1, :, 2], K[2, :, 1] = self.center_W, a, w * a, -w * w * a
+        object.__setattr__(self, '_K', K)
+
+    def rows(self, t: float) -> np.ndarray:
+        """Return x_d, xdot_d and xddot_d at time ``t`` (s) as the rows of a new (3, 3) array."""
+        wt = self.omega * t
+        return self._K.dot((1.0, math.sin(wt), math.cos(wt)))
+
     def __call__(self, t: float) -> Reference:
         """Evaluate at time ``t`` (s)."""
-        s, c = np.sin(self.omega * t), np.cos(self.omega * t)
-        w = self.omega
-        return Reference(self.center_W + self.amplitude_W * s,
-                         self.amplitude_W * (w * c), self.amplitude_W * (-w * w * s))
+        rows = self.rows(t)
+        return Reference(rows[0], rows[1], rows[2])
+
+
+def _hermite(t: float, t_blend: float) -> np.ndarray:
+    """
+    Return the blend weights of :func:`blend_start` at ``t``, a (3, 2) array.
+
+    Rows: value, first and second time derivative; columns: ``H0(s)`` and ``t_blend H1(s)``.
+    """
+    s, T = t / t_blend, t_blend
+    return np.array((
+        (1.0 - 10 * s**3 + 15 * s**4 - 6 * s**5, T * (s - 6 * s**3 + 8 * s**4 - 3 * s**5)),
+        ((-30 * s**2 + 60 * s**3 - 30 * s**4) / T, 1.0 - 18 * s**2 + 32 * s**3 - 15 * s**4),
+        ((-60 * s + 180 * s**2 - 120 * s**3) / T**2, (-36 * s + 96 * s**2 - 60 * s**3) / T)))
 
 
 def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
@@ -48,18 +72,9 @@ def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
     """
     if t_blend <= 0.0 or t >= t_blend:
         return ref
-    s, T = t / t_blend, t_blend
-    h0 = 1.0 - 10 * s**3 + 15 * s**4 - 6 * s**5
-    dh0 = (-30 * s**2 + 60 * s**3 - 30 * s**4) / T
-    ddh0 = (-60 * s + 180 * s**2 - 120 * s**3) / T**2
-    x, v, a = (ref.x_d_W + h0 * offset_W, ref.xdot_d_W + dh0 * offset_W,
-               ref.xddot_d_W + ddh0 * offset_W)
-    if offset_vel_W is not None:
-        h1 = T * (s - 6 * s**3 + 8 * s**4 - 3 * s**5)
-        dh1 = 1.0 - 18 * s**2 + 32 * s**3 - 15 * s**4
-        ddh1 = (-36 * s + 96 * s**2 - 60 * s**3) / T
-        x, v, a = x + h1 * offset_vel_W, v + dh1 * offset_vel_W, a + ddh1 * offset_vel_W
-    return Reference(x, v, a)
+    dv = np.zeros(3) if offset_vel_W is None else offset_vel_W
+    rows = np.array(ref) + _hermite(t, t_blend).dot(np.array((offset_W, dv)))
+    return Reference(rows[0], rows[1], rows[2])
 
 
 class BlendedReference:
@@ -69,7 +84,7 @@ class BlendedReference:
     Times ``tau`` are seconds since the run started. :meth:`start_from` makes the reference
     begin at the arm's position and velocity; :meth:`switch` changes the base (sine
     parameters, a held point, the normal) while the reference continues from where it
-    was. Both blend into the new base over ``t_blend`` with :func:`blend_start`. Only the
+    was. Both blend into the new base over ``t_blend`` as :func:`blend_start` does. Only the
     part along the surface is blended; along ``n`` the force loop acts.
     """
 
@@ -78,21 +93,32 @@ class BlendedReference:
         self.P_t = np.eye(3) - np.outer(n_W, n_W)
         self.x_hold_W: np.ndarray | None = None
         self.dp_W, self.dv_W, self.tau_b = np.zeros(3), np.zeros(3), 0.0
+        self._offsets = np.zeros((2, 3))  # rows dp_W, dv_W
+
+    def _base_rows(self, tau: float) -> np.ndarray:
+        """Return the base (the sine, or the held point at rest) as the rows of a new array."""
+        if self.x_hold_W is None:
+            return self.sine.rows(tau)
+        rows = np.zeros((3, 3))
+        rows[0] = self.x_hold_W
+        return rows
 
     def base(self, tau: float) -> Reference:
         """Return the reference without the blend: the sine, or the held point at rest."""
-        if self.x_hold_W is None:
-            return self.sine(tau)
-        z = np.zeros(3)
-        return Reference(self.x_hold_W, z, z)
+        rows = self._base_rows(tau)
+        return Reference(rows[0], rows[1], rows[2])
 
     def __call__(self, tau: float) -> Reference:
-        return blend_start(self.base(tau), self.dp_W, tau - self.tau_b, self.t_blend, self.dv_W)
+        rows, t = self._base_rows(tau), tau - self.tau_b
+        if not (self.t_blend <= 0.0 or t >= self.t_blend):  # blending (blend_start)
+            rows += _hermite(t, self.t_blend).dot(self._offsets)
+        return Reference(rows[0], rows[1], rows[2])
 
     def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray) -> None:
         """Blend from the position ``x_W`` and velocity ``xdot_W`` at ``tau``."""
         b = self.base(tau)
         self.dp_W, self.dv_W = self.P_t @ (x_W - b.x_d_W), self.P_t @ (xdot_W - b.xdot_d_W)
+        self._offsets = np.array((self.dp_W, self.dv_W))
         self.tau_b = tau
 
     def switch(self, tau: float, *, sine: SineReference | None = None,

@@ -15,6 +15,7 @@ arm can actually move in (``task_axes``: ``(0, 1)`` for a planar arm in the x-y 
 from __future__ import annotations
 
 from importlib import resources
+import math
 from pathlib import Path
 from typing import NamedTuple, Sequence
 
@@ -26,6 +27,7 @@ from .parameter_sets import make_parameter_set, ParameterSetError
 __all__ = ['ModelError', 'RobotModel', 'TaskKinematics', 'default_urdf_path']
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_POLARISE = np.array(((1.0, 0.125), (math.sqrt(2.0), -math.sqrt(2.0) / 8.0)))  # (R2)
 
 
 class ModelError(ValueError):
@@ -93,6 +95,7 @@ class RobotModel:
         self.parameter_set = ps
         self._P, self._pi_0 = ps.P, ps.pi_0
         self._has_pi_0 = bool(np.any(ps.pi_0))
+        self._P_pi_0 = np.column_stack((ps.P, ps.pi_0))
         self.theta_names, self.theta_nominal = ps.theta_names, ps.theta_nominal
         self.task_axes = self._detect_task_axes()
         self.m = len(self.task_axes)
@@ -175,29 +178,28 @@ class RobotModel:
         Task position, velocity, Jacobian and its derivative, eqs. (30)-(31) of [1].
 
         Uses pinocchio's ``computeJointJacobiansTimeVariation`` in the LOCAL_WORLD_ALIGNED
-        frame, whose linear rows are d p_W / dq and their time derivative.
+        frame, whose linear rows are d p_W / dq and their time derivative. Every array is new
+        (the simulator shares this model's pinocchio data).
         """
         model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
         pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
         T_root_ee = pin.updateFramePlacement(model, data, fid)
-        J = pin.getFrameJacobian(model, data, fid, _LWA)[:3]
-        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)[:3]
-        p_W, R, J = self.base_from_root(T_root_ee.translation, T_root_ee.rotation, J)
-        if self._R_W_root is not None:  # express everything in base_link
-            Jdot = self._R_W_root @ Jdot
-        J, Jdot = J[ax], Jdot[ax]
-        return TaskKinematics(p_W, R, p_W[ax], J @ qdot, J, Jdot)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)
+        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)
+        if self._R_W_root is None:  # base_link is the root: the task rows as they are
+            p_W, R, J, Jdot = T_root_ee.translation, T_root_ee.rotation, J[ax], Jdot[ax]
+        else:  # express everything in base_link
+            p_W, R, J = self.base_from_root(T_root_ee.translation, T_root_ee.rotation, J[:3])
+            J, Jdot = J[ax], self._R_W_root.dot(Jdot[:3])[ax]
+        return TaskKinematics(p_W, R, p_W[ax], J.dot(qdot), J, Jdot)
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:
         """
         Joint-space regressor: Y_q theta = M(q) qddot_r + C(q, qdot) qdot_r + g(q).
 
-        Eq. (4) of [1] in joint space with a reference velocity (Slotine-Li form). C is the
-        Christoffel matrix, so C(q, v) w = b(v, w) with b the symmetric bilinear velocity
-        term of the RNEA; by polarisation b(v, w) = (b(v+w) - b(v-w)) / 4, which gives
-        ``Y = R(q, v+w, 4a)/4 - R(q, v-w, 0)/4 + R(q, 0, 0)`` with R pinocchio's
-        ``computeJointTorqueRegressor``, mapped to theta by P.
+        Eq. (4) of [1] in joint space with a reference velocity (Slotine-Li form), mapped to
+        theta by P; see :meth:`regressor_affine`.
         """
         return self.regressor_affine(q, qdot, qdot_r, qddot_r)[0]
 
@@ -206,14 +208,25 @@ class RobotModel:
         """
         ``(Y_q, tau_0)`` with ``Y_q theta + tau_0 = M qddot_r + C qdot_r + g``.
 
-        ``tau_0 = R pi_0`` is the torque of the known part of the model (None when the set
-        has no known part, e.g. ``link_masses``).
+        Two calls of pinocchio's ``computeJointTorqueRegressor`` R, with ``R(q, v, a) pi =
+        M a + b(v, v) + g``. C is the Christoffel matrix, so ``C(q, v) w = b(v, w)`` with b
+        the symmetric bilinear velocity term of the RNEA. By polarisation, ``2 b(v + w/8,
+        v + w/8) - 2 b(v - w/8, v - w/8) = b(v, w)`` (the b(v, v) and b(w, w) terms cancel)
+        while M a and g appear 2 - 1 = 1 times, so (v = qdot, w = qdot_r, a = qddot_r)::
+
+            Y = (2 R(q, v + w/8, a) - R(q, sqrt2 (v - w/8), a)) P                   (R2)
+
+        gives ``Y theta = M a + C(q, v) w + g``. ``tau_0 = R pi_0`` is the torque of the known
+        part of the model (None when the set has no known part, e.g. ``link_masses``).
         """
-        model, data, z = self.model, self.data, self._zero
-        R_plus = pin.computeJointTorqueRegressor(model, data, q, qdot + qdot_r, 4.0 * qddot_r)
-        R_minus = pin.computeJointTorqueRegressor(model, data, q, qdot - qdot_r, z)
-        R = 0.25 * (R_plus - R_minus) + pin.computeJointTorqueRegressor(model, data, q, z, z)
-        return R @ self._P, (R @ self._pi_0 if self._has_pi_0 else None)
+        model, data = self.model, self.data
+        V = _POLARISE.dot((qdot, qdot_r))  # rows v + w/8 and sqrt2 (v - w/8)
+        R = (2.0 * pin.computeJointTorqueRegressor(model, data, q, V[0], qddot_r)
+             - pin.computeJointTorqueRegressor(model, data, q, V[1], qddot_r))
+        if not self._has_pi_0:
+            return R.dot(self._P), None
+        Y_tau_0 = R.dot(self._P_pi_0)  # [P, pi_0]: Y and tau_0 in one product
+        return Y_tau_0[:, :-1], Y_tau_0[:, -1]
 
     def inertia_inverse(self, q: np.ndarray) -> np.ndarray:
         """M(q)^-1 of the URDF (nominal) model, by pinocchio's ``computeMinverse``."""

@@ -171,7 +171,7 @@ class StiffnessEstimator:
         if not isinstance(config, StiffnessConfig):
             raise StiffnessConfigError(f'expected a StiffnessConfig, got {type(config).__name__}')
         self.config = config
-        self._dt_cache = (-1.0, 0.0, 0.0, 0.0)  # dt, lam (S3), alpha of x_bar (S5), a (S0)
+        self._dt_cache = (-1.0,) * 5  # dt, lam (S3), alpha of x_bar (S5), a (S0), lag of (S7)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -191,10 +191,8 @@ class StiffnessEstimator:
         Restart the regression (S2)-(S6) from the prior ``k_prior`` (default: the current k_hat).
 
         The k_s command, the counters and (unless ``restart_filter``, for a new normal) the filter
-        (S0) are kept.
-
-        For a new contact, when the surface may have changed: the information of a long
-        loading otherwise outweighs a new surface for several ``T_f``.
+        (S0) are kept. For a new contact, when the surface may have changed: the information of
+        a long loading otherwise outweighs a new surface for several ``T_f``.
         """
         c = self.config
         k0 = self.k_hat if k_prior is None else float(k_prior)
@@ -211,6 +209,7 @@ class StiffnessEstimator:
         self._cusum = 0.0  # S of (S9), N s
         self.saturated = False  # the projection onto [k_min, k_max] was active (S6)
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
+        self._valid = False  # (S6), evaluated once per change of the fit
 
     def restart(self) -> None:
         """
@@ -233,11 +232,12 @@ class StiffnessEstimator:
         if not isinstance(config, StiffnessConfig):
             raise StiffnessConfigError(f'expected a StiffnessConfig, got {type(config).__name__}')
         old, k_hat = self.config, self.k_hat
-        self.config, self._dt_cache = config, (-1.0, 0.0, 0.0, 0.0)
+        self.config, self._dt_cache = config, (-1.0,) * 5
         if config.k_hat0 != old.k_hat0:
             self.forget_data(config.prior)
         elif (config.k_min, config.k_max) != (old.k_min, old.k_max):
             self.forget_data(min(max(k_hat, config.k_min), config.k_max))
+        self._refresh_validity()  # valid_tol and force_floor enter (S6)
 
     def set_k_s_command(self, k_s: float) -> None:
         """
@@ -264,8 +264,12 @@ class StiffnessEstimator:
     @property
     def valid(self) -> bool:
         """(S6): enough exciting samples, a small relative standard deviation, not at a bound."""
-        return (self._w >= MIN_SAMPLES and not self.saturated
-                and self.k_hat_std <= self.config.valid_tol * self.k_hat)
+        return self._valid
+
+    def _refresh_validity(self) -> None:
+        """Evaluate (S6) after the fit changed (``valid`` is read several times per sample)."""
+        self._valid = (self._w >= MIN_SAMPLES and not self.saturated
+                       and self.k_hat_std <= self.config.valid_tol * self.k_hat)
 
     @property
     def near_k_max(self) -> bool:
@@ -278,16 +282,17 @@ class StiffnessEstimator:
         return self._k_s
 
     # ------------------------------------------------------------------ update
-    def _factors(self, dt: float) -> tuple[float, float, float, float]:
-        """``(dt, lam, alpha, a)``: (S3), the x_bar gain of (S5) and (S0) (cached)."""
-        if not (isinstance(dt, (int, float)) and dt > 0.0 and math.isfinite(dt)):
-            raise StiffnessError(f'dt must be finite and > 0, got {dt!r}')
-        if dt != self._dt_cache[0]:
+    def _factors(self, dt: float) -> tuple[float, float, float, float, float]:
+        """``(dt, lam, alpha, a, lag)``: (S3), the x_bar gain of (S5), (S0), (S7) (cached)."""
+        if dt != self._dt_cache[0]:  # (the cached dt was checked)
+            if not (isinstance(dt, (int, float)) and dt > 0.0 and math.isfinite(dt)):
+                raise StiffnessError(f'dt must be finite and > 0, got {dt!r}')
             c = self.config
-            w_c = 2.0 * math.pi * c.force_filter_hz
-            a = 1.0 if w_c == 0.0 else -math.expm1(-w_c * dt)
+            w_c, T_s = 2.0 * math.pi * c.force_filter_hz, c.k_s_time_constant
             self._dt_cache = (dt, math.exp(-dt / c.time_constant),
-                              -math.expm1(-dt / c.excitation_window), a)
+                              -math.expm1(-dt / c.excitation_window),
+                              1.0 if w_c == 0.0 else -math.expm1(-w_c * dt),
+                              1.0 if T_s == 0.0 else -math.expm1(-dt / T_s))
         return self._dt_cache
 
     def update(self, f_n: float, x_n: float, dt: float, in_contact: bool) -> float:
@@ -311,7 +316,7 @@ class StiffnessEstimator:
             The caller's contact test; samples out of contact are ignored.
 
         """
-        _, lam, alpha, a = self._factors(dt)
+        _, lam, alpha, a, _ = self._factors(dt)
         self.excited, self.excitation_n = False, 0.0
         try:
             f_n, x_n = float(f_n), float(x_n)
@@ -333,7 +338,7 @@ class StiffnessEstimator:
             return self.k_hat
         deviation = abs(x_n - self._x_bar)
         self._x_bar += alpha * (x_n - self._x_bar)
-        self.excitation_n = (self.k_hat if self.valid else self.config.k_max) * deviation
+        self.excitation_n = (self.k_hat if self._valid else self.config.k_max) * deviation
         if self.excitation_n < self.config.excitation or deviation == 0.0:  # (S5)
             return self.k_hat
         self.excited = True
@@ -344,7 +349,7 @@ class StiffnessEstimator:
     def _changed(self, f_n: float, x_n: float, dt: float) -> bool:
         """(S9) on one in-contact sample; only a valid estimate is tested."""
         c = self.config
-        if c.change_force == 0.0 or not self.valid:
+        if c.change_force == 0.0 or not self._valid:
             self._cusum = 0.0
             return False
         eps = f_n - (c.k_max * (x_n - self._x_ref) * self._kappa + self._b)
@@ -372,8 +377,8 @@ class StiffnessEstimator:
         self.saturated = bool(clipped != kappa)
         self._r_uu, self._r_ub, self._r_bb = r_uu, r_ub, r_bb
         post = f_n - (u * clipped + b)
-        self._w = lam * self._w + 1.0
-        self._s2_sum = lam * self._s2_sum + post * post
+        self._w, self._s2_sum = lam * self._w + 1.0, lam * self._s2_sum + post * post
+        self._refresh_validity()
 
     # ------------------------------------------------------------------ k_s
     def k_s_command(self, dt: float) -> float:
@@ -383,17 +388,12 @@ class StiffnessEstimator:
         Down to a valid k_hat, up to any (a command outside ``[k_min, k_max]``, e.g. after new
         bounds, moves into them). Disabled: held.
         """
-        self._factors(dt)
+        lag = self._factors(dt)[4]
         c = self.config
         k_hat, k_s = self.k_hat, self._k_s
-        if not c.enabled:
-            target = k_s
-        elif k_hat > k_s or self.valid:
-            target = k_hat
-        else:
-            target = min(max(k_s, c.k_min), c.k_max)
-        gap = math.log(target / k_s)
-        step = gap if c.k_s_time_constant == 0.0 else gap * -math.expm1(-dt / c.k_s_time_constant)
+        target = (k_s if not c.enabled else k_hat if k_hat > k_s or self._valid
+                  else min(max(k_s, c.k_min), c.k_max))
+        step = math.log(target / k_s) * lag
         step = min(max(step, -c.k_s_rate_down * dt), c.k_s_rate_up * dt)
         self._k_s = k_s * math.exp(step)
         self.k_s_log_rate = step / dt

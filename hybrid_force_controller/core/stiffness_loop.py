@@ -53,6 +53,7 @@ class StiffnessLoop:
     def __init__(self, config: StiffnessConfig, n_W: np.ndarray) -> None:
         self.estimator = StiffnessEstimator(config)
         self._n_W = np.array(n_W, dtype=float)
+        self._n = tuple(self._n_W.tolist())  # n as floats: n^T p on floats
         self._known = False  # the estimate has been valid since the last reset
         self._touching = False
         self.contacts = 0
@@ -84,6 +85,7 @@ class StiffnessLoop:
             self._known = False
         if not np.array_equal(n_W, self._n_W):
             self._n_W[:] = n_W
+            self._n = tuple(self._n_W.tolist())
             est.forget_data(restart_filter=True)
         if config.enabled and not was_enabled:
             est.set_k_s_command(ctrl.k_s)
@@ -110,7 +112,8 @@ class StiffnessLoop:
         elif self._touching and not touching:
             est.restart()  # contact lost: the next surface is unknown
         self._touching = touching
-        est.update(f_n, float(self._n_W @ p_W), dt_state, touching)
+        (n_x, n_y, n_z), (p_x, p_y, p_z) = self._n, p_W.tolist()
+        est.update(f_n, n_x * p_x + n_y * p_y + n_z * p_z, dt_state, touching)  # x_n = n^T p_W
         self._known = est.valid or (self._known and est.restarts == restarts)
         if est.config.enabled:
             ctrl.set_k_s(est.k_s_command(dt_int), est.k_s_log_rate)

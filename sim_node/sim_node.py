@@ -42,7 +42,7 @@ from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidati
                                                  ParamSpec as _S)
 from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
 from hybrid_force_controller.core.simulator import Measurement
-from hybrid_force_controller.ros.cdr import read_float64_array
+from hybrid_force_controller.ros.cdr import RawMessage, read_float64_array
 from hybrid_force_controller.ros.control_loop import schedule_process
 from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
 from hybrid_force_controller.ros.model_source import expand_description
@@ -83,7 +83,8 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
     ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
     ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
-    ('substeps', 'integer', 4, 'Integration sub-steps per step.', 1, 1000, {}),
+    ('substeps', 'integer', 2, 'Integration sub-steps per step (the offline scenarios use 2).',
+     1, 1000, {}),
     ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
      '(sim time in lockstep).', 1e-6, 60.0, {}),
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
@@ -152,10 +153,18 @@ class SimNode(Node):
             self.get_logger().warning(warning)
 
     def _make_messages(self) -> None:
-        """Messages built once and refilled in place by every publish."""
-        self.js = JointState(name=self.joints)
-        self.ft, self.true = WrenchStamped(), WrenchStamped()
-        self.ft.header.frame_id, self.true.header.frame_id = self.tool_frame, self.base_frame
+        """
+        Messages built once and refilled in place by every publish.
+
+        The 1 kHz joint state and wrench are kept serialized (ros/cdr.py ``RawMessage``) and
+        published as bytes: rclpy's conversion of every field cost more than the physics.
+        """
+        zeros = [0.0] * len(self.joints)
+        self.js = RawMessage('joint_state', JointState(name=self.joints, position=zeros,
+                                                       velocity=zeros, effort=zeros))
+        self.ft = RawMessage('wrench_stamped', WrenchStamped(header=Header(
+            frame_id=self.tool_frame)))
+        self.true = WrenchStamped(header=Header(frame_id=self.base_frame))
         self.clock_msg = ClockMsg()
         self.n_pub = 0
 
@@ -281,23 +290,22 @@ class SimNode(Node):
 
         So a controller that ticks on the joint state has the wrench of the same step.
         """
-        stamp = (Time(nanoseconds=round(meas.t * 1e9)) if self.lockstep
-                 else self.get_clock().now()).to_msg()
+        t_ns = round(meas.t * 1e9) if self.lockstep else time.time_ns()  # ROS time: wall
         js, ft, true = self.js, self.ft, self.true
-        js.position = meas.q[self.to_msg].tolist()
-        js.velocity = meas.qdot[self.to_msg].tolist()
-        js.effort = meas.tau[self.to_msg].tolist()
+        q, qdot, tau = js.arrays
+        q[:], qdot[:], tau[:] = meas.q[self.to_msg], meas.qdot[self.to_msg], meas.tau[self.to_msg]
         if not self.sensor_frozen:  # frozen: the reused message repeats its last reading
-            F_ee = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
-            force = ft.wrench.force
-            force.x, force.y, force.z = float(F_ee[0]), float(F_ee[1]), float(F_ee[2])
+            ft.arrays[0][:] = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
             torque = getattr(self.sim, 'torque_S', None)  # MuJoCo's wrist torque sensor
             if torque is not None:
-                ft.wrench.torque.x, ft.wrench.torque.y, ft.wrench.torque.z = map(float, torque)
-        ft.header.stamp = js.header.stamp = stamp
-        self.pub_ft.publish(ft)
-        self.pub_js.publish(js)
+                ft.arrays[1][:] = torque
+        js.set_stamp(t_ns)
+        ft.set_stamp(t_ns)
+        self.pub_ft.publish(ft.serialized())
+        self.pub_js.publish(js.serialized())
+        stamp = None
         if self.true_every and self.n_pub % self.true_every == 0:
+            stamp = Time(nanoseconds=t_ns).to_msg()
             force = true.wrench.force
             force.x, force.y, force.z = (float(c) for c in meas.f_true_W)
             true.header.stamp = stamp
@@ -305,7 +313,7 @@ class SimNode(Node):
         self.n_pub += 1
         self.state_gaps.mark(time.monotonic())
         if self.pub_clock is not None:
-            self.clock_msg.clock = stamp
+            self.clock_msg.clock = stamp or Time(nanoseconds=t_ns).to_msg()
             self.pub_clock.publish(self.clock_msg)
         self.t_pub = time.monotonic()
 

@@ -158,7 +158,7 @@ def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e
     orthogonal projection in the Gamma metric, so the Lyapunov term
     ``theta_tilde^T Gamma theta_tilde`` does not grow (the true theta lies in the box).
     """
-    return np.minimum(np.maximum(theta_hat - dt * (Gamma_inv @ (Y_x.T @ e)), theta_min), theta_max)
+    return np.minimum(np.maximum(theta_hat - dt * Gamma_inv.dot(e.dot(Y_x)), theta_min), theta_max)
 
 
 class HybridForceController:
@@ -375,7 +375,7 @@ class HybridForceController:
         zone d (sensor noise) does not adapt at all, and w is continuous in e.
         """
         g = self._d.gains
-        e_norm = math.sqrt(float(e @ e))
+        e_norm = math.sqrt(e.dot(e))
         if e_norm <= g.adapt_dead_zone:
             return 0.0
         w = 1.0 if e_norm <= g.adapt_error_limit else g.adapt_error_limit / e_norm

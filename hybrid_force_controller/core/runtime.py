@@ -62,6 +62,7 @@ class _Clock:
     t_used: float = -math.inf
 
 
+_STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
 _COUNTERS = ('ticks', 'joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
              'safe_mode_entries', 'control_errors', 'saturated_ticks', 'clock_restarts',
              'approach_entries', 'stale_ticks', 'late_states', 'stalls')
@@ -141,7 +142,8 @@ class ControllerRuntime:
         self.ctrl.set_gains(params.law)
         self._stiffness.configure(params.stiffness, params.law.n, self.ctrl)
         self._in.configure(rt)
-        self._cmd_order = [self.model.joint_names.index(j) for j in rt.joints]
+        order = [self.model.joint_names.index(j) for j in rt.joints]
+        self._cmd_order = None if order == list(range(len(order))) else order
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
         self._approach.configure(rt.approach_speed, rt.approach_limit)
         self.recovery.configure(params.recovery)
@@ -226,7 +228,7 @@ class ControllerRuntime:
         if stale:
             return self._safe(f_W, stale, t)
         dt_state, dt_int = self._state_step(stalled or self._restarted)
-        f_n = float(self._params.law.n @ f_W)
+        f_n = float(self._params.law.n.dot(f_W))
         touching = self._contact.update(f_n, self._params.law.f_d, self._in.state.t)
         if self.mode in (Mode.WAITING, Mode.SAFE):
             if self._restarted:
@@ -374,7 +376,7 @@ class ControllerRuntime:
 
     def _observe(self, t: float, f_n: float, e: np.ndarray, touching: bool) -> None:
         """Note this tick's errors: calm stretches, and the next tick's episode triggers."""
-        self.recovery.note(t, abs(f_n - self._params.law.f_d), math.sqrt(float(e @ e)),
+        self.recovery.note(t, abs(f_n - self._params.law.f_d), math.sqrt(e.dot(e)),
                            touching and self.mode == Mode.RUNNING, self.ctrl.theta_hat)
 
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
@@ -393,9 +395,9 @@ class ControllerRuntime:
 
     def _running_output(self, tau: np.ndarray, out: ControlOutput, x_d_W: np.ndarray,
                         f_W: np.ndarray) -> TickOutput:
-        status = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface',
-                  Mode.NO_SURFACE: f'surface not found within approach_limit = '
-                  f'{self._params.runtime.approach_limit:g} m: holding'}[self.mode]
+        status = (_STATUS[self.mode] if self.mode != Mode.NO_SURFACE else
+                  f'surface not found within approach_limit = '
+                  f'{self._params.runtime.approach_limit:g} m: holding')
         return self._output(tau, self.mode, status, f_W, out.kin.p_W, x_d_W, out.e)
 
     def _output(self, tau: np.ndarray | None, mode: Mode, status: str,
@@ -410,7 +412,8 @@ class ControllerRuntime:
         e_W = np.zeros(3)
         if e is not None:
             e_W[self.model.task_index] = e
-        tau = None if tau is None else tau[self._cmd_order]
+        tau = (None if tau is None else tau.copy() if self._cmd_order is None
+               else tau[self._cmd_order])
         return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat)

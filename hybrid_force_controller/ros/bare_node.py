@@ -4,7 +4,8 @@ The yardstick of ``bench --ros``: a bare rclpy node with the controller's I/O an
 It subscribes ``joint_states`` and ``force_torque_sensor_broadcaster/wrench`` (raw, KEEP_LAST
 1, best effort, like the controller) and publishes one ``Float64MultiArray`` of as many
 zeros as the joint state has positions on ``bare_node/commands`` for each joint state, on an
-EventsExecutor. What the controller costs beyond this is what its control costs.
+EventsExecutor, kept serialized and published as bytes as the controller's effort is. What
+the controller costs beyond this is what its control costs.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from .cdr import read_joint_state, read_wrench_stamped
+from .cdr import RawMessage, read_joint_state, read_wrench_stamped
 from .qos import COMMAND_QOS, sensor_in_qos
 from .runner import run_node
 
@@ -31,18 +32,22 @@ class BareNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('bare_node', **kwargs)
-        self.msg = Float64MultiArray(data=array.array('d', bytes(8 * 2)))
+        self.msg = self._message(2)
         self.pub = self.create_publisher(Float64MultiArray, TOPIC_BARE_COMMANDS, COMMAND_QOS)
         qos = sensor_in_qos()
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, qos, raw=True)
         self.create_subscription(WrenchStamped, 'force_torque_sensor_broadcaster/wrench',
                                  self._on_wrench, qos, raw=True)
 
+    @staticmethod
+    def _message(n: int) -> RawMessage:
+        return RawMessage('float64_array', Float64MultiArray(data=array.array('d', bytes(8 * n))))
+
     def _on_joint_state(self, raw: bytes) -> None:
         state = read_joint_state(raw)
-        if len(self.msg.data) != len(state.position):
-            self.msg.data = array.array('d', bytes(8 * len(state.position)))
-        self.pub.publish(self.msg)
+        if len(self.msg.arrays[0]) != len(state.position):
+            self.msg = self._message(len(state.position))
+        self.pub.publish(self.msg.serialized())
 
     def _on_wrench(self, raw: bytes) -> None:
         read_wrench_stamped(raw)

@@ -7,6 +7,11 @@ controller and the sim need a few numbers from each message. These readers take 
 serialized message (XCDR1, as rmw_fastrtps sends it: a 4-byte encapsulation header, then
 the fields, each aligned to its size counted from the end of that header) and return
 plain values. Malformed bytes raise :class:`CdrError` (a ValueError).
+
+The other way, :class:`RawMessage` keeps one serialized message (built once from a template
+message by rclpy's serializer) and refills its stamp and double arrays in place; publishing
+its bytes (``publish_raw``) skips rclpy's Python-to-C conversion of every field (a
+JointState: 11 -> 3.6 us, a WrenchStamped 12.5 -> 3 us, here).
 """
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ['CdrError', 'JointStateData', 'WrenchData', 'read_float64_array',
+__all__ = ['CdrError', 'JointStateData', 'RawMessage', 'WrenchData', 'read_float64_array',
            'read_joint_state', 'read_wrench_stamped']
 
 
@@ -117,3 +122,67 @@ def read_float64_array(buf: bytes) -> np.ndarray:
         r._take('<II', 4)
     r.uint32()  # layout.data_offset
     return r.doubles()
+
+
+class RawMessage:
+    """
+    A serialized message whose stamp and double arrays are refilled in place.
+
+    ``kind`` is ``'joint_state'`` (position, velocity, effort), ``'wrench_stamped'`` (force,
+    torque) or ``'float64_array'`` (data); ``template`` is a message of that type with the
+    final names, frame and array sizes. :attr:`arrays` are numpy views into the bytes.
+    """
+
+    def __init__(self, kind: str, template: object) -> None:
+        from rclpy.serialization import serialize_message
+        self.buf = bytearray(serialize_message(template))
+        r = _Reader(bytes(self.buf))
+        spans = _SPANS[kind](r)
+        self.has_stamp = kind != 'float64_array'
+        self.arrays = [np.frombuffer(self.buf, '<f8', n, pos) for pos, n in spans]
+
+    def set_stamp(self, t_ns: int) -> None:
+        """Set ``header.stamp`` to ``t_ns`` nanoseconds."""
+        _STRUCT['<iI'].pack_into(self.buf, 4, *divmod(t_ns, 1_000_000_000))
+
+    def serialized(self) -> bytes:
+        """Return the serialized message (a copy: the publisher may keep it)."""
+        return bytes(self.buf)
+
+
+def _double_spans(r: _Reader, count: int) -> list[tuple[int, int]]:
+    """Return (offset, length) of the next ``count`` double sequences."""
+    spans = []
+    for _ in range(count):
+        n = r.uint32()
+        r.pos = 4 + (r.pos - 4 + 7) // 8 * 8
+        spans.append((r.pos, n))
+        r.pos += 8 * n
+    return spans
+
+
+def _joint_state_spans(r: _Reader) -> list[tuple[int, int]]:
+    r.stamp()
+    r.string()
+    for _ in range(r.uint32()):
+        r.string()
+    return _double_spans(r, 3)
+
+
+def _wrench_spans(r: _Reader) -> list[tuple[int, int]]:
+    r.stamp()
+    r.string()
+    r._take('<3d', 8)
+    return [(r.pos - 24, 3), (r.pos, 3)]
+
+
+def _float64_array_spans(r: _Reader) -> list[tuple[int, int]]:
+    for _ in range(r.uint32()):
+        r.string()
+        r._take('<II', 4)
+    r.uint32()
+    return _double_spans(r, 1)
+
+
+_SPANS = {'joint_state': _joint_state_spans, 'wrench_stamped': _wrench_spans,
+          'float64_array': _float64_array_spans}

@@ -222,8 +222,12 @@ class ControlLoop:
             record(kind, clock() - t0)
         return run
 
+    def _now_ns(self) -> int:
+        """Return the loop clock's time: the wall clock (ROS time), or /clock with sim time."""
+        return self._clock.now().nanoseconds if self.settings.use_sim_time else time.time_ns()
+
     def _now(self) -> float:
-        return self._clock.now().nanoseconds * 1e-9
+        return self._now_ns() * 1e-9
 
     def _apply_handovers(self) -> None:
         """Install what the node handed over since the last tick (the tick boundary)."""
@@ -275,7 +279,7 @@ class ControlLoop:
         time the /clock update may arrive after the state).
         """
         t_start = time.perf_counter()
-        now_ns = max(self._clock.now().nanoseconds, round(t_input * 1e9))
+        now_ns = max(self._now_ns(), round(t_input * 1e9))
         self._t_tick = now_ns * 1e-9
         out = self.runtime.tick(self._t_tick)
         if out.tau is not None:

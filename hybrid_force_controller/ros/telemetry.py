@@ -17,6 +17,7 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 import numpy as np
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
+from .cdr import RawMessage
 from .qos import COMMAND_QOS, TELEMETRY_QOS
 
 __all__ = ['ControllerOutputs', 'EffortOutput', 'TOPIC_COMMANDS']
@@ -34,16 +35,21 @@ def _buffer_msg(size: int, layout: MultiArrayLayout | None = None
 
 
 class EffortOutput:
-    """The effort publisher and its reused message (the control thread's only output)."""
+    """
+    The effort publisher and its message (the control thread's only output).
+
+    The message is kept serialized and published as bytes (cdr.py ``RawMessage``).
+    """
 
     def __init__(self, node: Any, topic: str, n_joints: int) -> None:
         self.pub_tau = node.create_publisher(Float64MultiArray, topic, COMMAND_QOS)
-        self.tau_msg, self.tau_view = _buffer_msg(n_joints)
+        self.tau_msg = RawMessage('float64_array', _buffer_msg(n_joints)[0])
+        self.tau_view = self.tau_msg.arrays[0]
 
     def publish(self, tau: np.ndarray) -> None:
         """Publish the joint efforts (command order)."""
         self.tau_view[:] = tau
-        self.pub_tau.publish(self.tau_msg)
+        self.pub_tau.publish(self.tau_msg.serialized())
 
 
 class ControllerOutputs:

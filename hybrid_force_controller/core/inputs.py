@@ -111,13 +111,13 @@ class WrenchGate:
             raise InputError(f'wrench holds NaN/Inf: {[fx, fy, fz]}')
         if not self._frame_exists(frame_id or ' '):
             raise InputError(f"wrench frame '{frame_id}' is not a frame of the robot model")
-        last = self.last
-        if last is not None and t < last.t:
-            raise InputError(f'wrench stamp {t:.6f} is older than the last one {last.t:.6f}')
-        size = math.hypot(fx, fy, fz)
+        size = math.hypot(fx, fy, fz)  # out of range whatever its stamp: say so first
         if size > self.wrench_limit:
             raise ImplausibleWrench(f'implausible wrench: |F| = {size:.4g} N > wrench_limit '
                                     f'{self.wrench_limit:g} N')
+        last = self.last
+        if last is not None and t < last.t:
+            raise InputError(f'wrench stamp {t:.6f} is older than the last one {last.t:.6f}')
         same_frame = last is not None and frame_id == last.frame_id
         if same_frame and t > last.t:
             lx, ly, lz = self._last_xyz

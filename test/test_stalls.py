@@ -132,6 +132,13 @@ def test_trusted_estimate_needs_a_calm_stretch_and_an_episode_holds_it():
     np.testing.assert_array_equal(rec.trusted, theta)  # the episode's theta is not trusted
 
 
+def test_new_projection_bounds_clip_the_trusted_estimate():
+    rec = Recovery(2, RecoveryConfig(calm_time=0.0))
+    rec.note(0.0, 0.0, 0.0, True, np.array([1.0, 5.0]))
+    rec.configure(RecoveryConfig(), np.array([0.0, 0.0]), np.array([2.0, 3.0]))
+    np.testing.assert_array_equal(rec.trusted, [1.0, 3.0])
+
+
 @pytest.mark.parametrize('df,e,kind', [(3.5, 0.0, 'force_transient'),
                                        (0.0, 0.3, 'tracking_fault'), (2.9, 0.2, '')])
 def test_transients_start_an_episode_at_the_next_tick(df, e, kind):

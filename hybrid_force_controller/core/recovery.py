@@ -99,9 +99,17 @@ class Recovery:
         self._calm_since = math.nan  # start of the current calm stretch (NaN: not calm)
         self._df = self._e = 0.0  # the last tick's |f_n - f_d| (N) and |e| (m/s)
 
-    def configure(self, cfg: RecoveryConfig) -> None:
-        """Install a new configuration (a parameter set); the state is kept."""
+    def configure(self, cfg: RecoveryConfig, theta_min: np.ndarray | None = None,
+                  theta_max: np.ndarray | None = None) -> None:
+        """
+        Install a new configuration (a parameter set); the state is kept.
+
+        The trusted estimate is clipped into new projection bounds ``theta_min``,
+        ``theta_max`` (a set that moves them).
+        """
         self.cfg = cfg
+        if theta_min is not None and theta_max is not None:
+            np.clip(self.trusted, theta_min, theta_max, out=self.trusted)
 
     @property
     def frozen(self) -> bool:

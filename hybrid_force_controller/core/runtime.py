@@ -146,7 +146,7 @@ class ControllerRuntime:
         self._cmd_order = None if order == list(range(len(order))) else order
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
         self._approach.configure(rt.approach_speed, rt.approach_limit)
-        self.recovery.configure(params.recovery)
+        self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
         self.f_d_W = params.law.f_d * params.law.n
 

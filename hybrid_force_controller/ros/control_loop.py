@@ -21,7 +21,8 @@ This is the split realtime_tools and ros2_control make (parameters reach ``updat
 through a real-time buffer; the update loop never publishes through a plain publisher
 from another thread). The thread asks for ``SCHED_FIFO`` at ``thread_priority`` (as
 controller_manager does, 50 by default) and for ``cpu_affinity``; the executable's
-``main`` puts the node's thread and the middleware's just below (:func:`schedule_process`).
+``main`` puts the middleware's threads (which deliver its input) just below, and the node's
+thread below those (:func:`schedule_process`).
 A refusal is reported, and the loop runs on.
 """
 from __future__ import annotations
@@ -94,9 +95,9 @@ def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
 
 
 def schedule_process(priority: int, what: str, keep: tuple[int, ...] = (),
-                     cpus: Sequence[int] = ()) -> list[str]:
+                     cpus: Sequence[int] = (), others: int | None = None) -> list[str]:
     """
-    Give the calling thread SCHED_FIFO ``priority`` and the process's other threads one less.
+    Give the calling thread SCHED_FIFO ``priority`` and the process's other threads ``others``.
 
     Called by a node's ``main`` on the thread that spins the node, once the node exists: the
     other threads then are the middleware's (DDS receive, events, shared-memory watchdog).
@@ -105,17 +106,19 @@ def schedule_process(priority: int, what: str, keep: tuple[int, ...] = (),
     priority inversion: 167 ms holds and 217 ms effort gaps beside two busy processes); at
     FIFO they preempt ordinary processes, and a loop above them still preempts them.
     ``keep``: thread ids left as they are (a control thread scheduled already); ``cpus``:
-    the calling thread's CPUs. ``priority`` <= 0 leaves the scheduler alone. Returns the
-    first warning, if any.
+    the calling thread's CPUs; ``others`` (default ``priority - 1``): the priority of the
+    other threads. ``priority`` <= 0 leaves the scheduler alone. Returns the first warning,
+    if any.
     """
     if priority <= 0:
         return []
     me = threading.get_native_id()
     warnings = set_thread_scheduling(priority, cpus)
-    others = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
-    for tid in others:
+    level = max(1, priority - 1 if others is None else others)
+    tids = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
+    for tid in tids:
         try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(max(1, priority - 1)))
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(level))
         except OSError as exc:
             warnings.append(f'could not set SCHED_FIFO on the middleware threads ({exc})')
             break
@@ -128,7 +131,9 @@ class ControlLoop:
     def __init__(self, owner: Node, runtime: ControllerRuntime, settings: LoopSettings) -> None:
         self.runtime, self.settings = runtime, settings
         self.active = False
-        self.telemetry: deque = deque(maxlen=1000)  # (TickOutput, stamp ns), for the node
+        # (TickOutput, stamp ns), for the node: the newest 0.5 s at 100 Hz (a node thread held
+        # off for longer publishes only those, in one short burst)
+        self.telemetry: deque = deque(maxlen=50)
         self.telemetry_every = 0  # every k-th commanding tick goes to telemetry (0: none)
         self.events: deque = deque(maxlen=256)  # ('mode'|'error'|'warning', ...), for the node
         self.errors = dict.fromkeys(CALLBACK_KINDS, 0)

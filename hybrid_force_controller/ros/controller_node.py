@@ -265,13 +265,14 @@ class ControllerNode(LifecycleNode):
 
     def schedule_this_thread(self) -> None:
         """
-        Schedule the node's thread and the middleware's below the control thread (``main``).
+        Schedule the middleware's threads below the control thread, and the node's below them.
 
         See :func:`~.control_loop.schedule_process`; a node built in another program leaves
         that program's threads alone.
         """
         keep = () if self.loop is None or self.loop.native_id is None else (self.loop.native_id,)
-        self._node_scheduling = schedule_process(self._thread_priority() - 1, 'node thread', keep)
+        top = self._thread_priority()  # the control thread's; the middleware delivers its input
+        self._node_scheduling = schedule_process(top - 2, 'node thread', keep, others=top - 1)
 
     def destroy_node(self) -> None:
         """Stop the control thread first (a node destroyed without a shutdown transition)."""

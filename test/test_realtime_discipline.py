@@ -14,8 +14,8 @@ its ``command_timeout`` at 0.1 s, as a torque-controlled arm's watchdog):
   (``loop_hold_max_ms``, every callback counted) stays under 20 periods;
 * the control thread runs at SCHED_FIFO 50 (granted here, as root), the middleware's threads
   at 49 (they deliver its input) and the node's own thread at 48, none at the ordinary policy
-  (the loop waits on them: the GIL, the DDS delivery); where the OS refuses it (``setpriv`` drops CAP_SYS_NICE) the node
-  warns once, with what to do, and runs on.
+  (the loop waits on them: the GIL, the DDS delivery); where the OS refuses it (``setpriv``
+  drops CAP_SYS_NICE) the node warns once, with what to do, and runs on.
 
 Thresholds are loose on purpose (a loaded 2-core machine): the exact figures are what
 ``bench --ros --param-storm 20`` reports. Checks cover the whole run, not a window.

@@ -122,5 +122,7 @@ def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     t, f = rig.log.forces(t_drop)
     assert (f[t < t_release] < 0.05).any(), 'the drop did not break contact'
     back = (t > t_release) & (f > 0.1)
+    print(f'freeze in an approach: contact {t[np.argmax(back)] - t_release:.3f} s after '
+          f'SIGCONT, peak {f[t > t_release].max():.2f} N' if back.any() else 'no contact')
     assert back.any() and t[np.argmax(back)] - t_release <= 2.5
     assert run['ctrl1']['lifecycle_state'] == 'active'

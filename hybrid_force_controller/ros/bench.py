@@ -40,7 +40,8 @@ LONG_FREEZE_S = 0.1  # the sim's command_timeout: a longer freeze drops the arm
 class _Diagnostics:
     """Latest /diagnostics values per hardware_id, in a background-spun context."""
 
-    def __init__(self, domain: int) -> None:
+    def __init__(self, domain: int, n_W: Sequence[float] = (0.0, -1.0, 0.0),
+                 f_d: float = 1.0) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from .runner import make_executor
@@ -61,7 +62,7 @@ class _Diagnostics:
         # the bare node's commands have a subscriber, as the controller's have the sim
         self.node.create_subscription(Float64MultiArray, TOPIC_BARE_COMMANDS, lambda m: None,
                                       COMMAND_QOS, raw=True)
-        self.tracking = TrackingMeter(self.node, np.array([0.0, -1.0, 0.0]), 1.0)
+        self.tracking = TrackingMeter(self.node, np.array(n_W, dtype=float), f_d)
         self.params = AsyncParameterClient(self.node, PKG)
         self.executor = make_executor('single_threaded', self.context)
         self.executor.add_node(self.node)
@@ -204,9 +205,10 @@ def _controller_holds(ctrl: dict[str, str]) -> dict[str, float]:
 def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
             procs: dict[str, subprocess.Popen]) -> None:
     """Start the processes of a run into ``procs`` (one by one: a signal stops those started)."""
-    ros_args = ['--ros-args', '--params-file', str(find_config()), *cfg['params']]
+    ros_args = ['--ros-args', *cfg['scenario'], *cfg['params']]
     pin = ['taskset', '-c', '0'] if cfg['one_core'] else []
-    procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args], env, log_dir, pin)
+    procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args, *cfg['sim_args']], env,
+                          log_dir, pin)
     procs['controller'] = _start('controller', [f'{PKG}.ros.controller_node', *ros_args], env,
                                  log_dir, pin)
     procs['bare'] = _start('bare', [f'{PKG}.ros.bare_node'], env, log_dir)
@@ -221,7 +223,7 @@ def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
 def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    diag = _Diagnostics(domain)
+    diag = _Diagnostics(domain, *cfg['n_f_d'])
     procs: dict[str, subprocess.Popen] = {}
     extra: dict[str, Any] = {}
     try:
@@ -285,17 +287,24 @@ def _tracking(diag, t_stamp0, t_end, frozen, storm) -> dict[str, Any]:
 def ros_loop_figures(duration_s: float = 20.0, load_duty: float = 0.3,
                      params: Sequence[str] = (), domain: int | None = None,
                      freezes: int = 0, freeze_ms: float = 30.0, one_core: bool = False,
-                     param_storm: float = 0.0, loaded: bool = True) -> dict[str, Any]:
+                     param_storm: float = 0.0, loaded: bool = True,
+                     scenario: Sequence[str] | None = None, sim_args: Sequence[str] = (),
+                     n_f_d: tuple[Sequence[float], float] = ((0.0, -1.0, 0.0), 1.0)
+                     ) -> dict[str, Any]:
     """
     Measure the real-time loop alone and (``loaded``) under load.
 
     Load: a recorder and ``load_duty`` of a core busy. ``freezes``: SIGSTOP the controller
     for ``freeze_ms`` that many times in each run; ``one_core``: the sim and the controller
     pinned to CPU 0; ``param_storm``: parameter sets per second during 5 s of each run.
+    ``scenario``: the ``--ros-args`` of both nodes (default: config/params.yaml), ``sim_args``
+    the sim's own, ``n_f_d`` the normal and f_d the tracking figures use.
     """
+    scenario = ['--params-file', str(find_config())] if scenario is None else list(scenario)
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38')) if domain is None else domain
     cfg = {'duration': duration_s, 'params': list(params), 'freezes': freezes,
-           'freeze_ms': freeze_ms, 'one_core': one_core, 'param_storm': param_storm}
+           'freeze_ms': freeze_ms, 'one_core': one_core, 'param_storm': param_storm,
+           'scenario': scenario, 'sim_args': list(sim_args), 'n_f_d': n_f_d}
     out: dict[str, Any] = {'ros_duration_s': duration_s, 'ros_params': list(params),
                            'ros_one_core': one_core, 'ros_param_storm_per_s': param_storm}
     with tempfile.TemporaryDirectory(prefix='bench_ros_') as tmp:
@@ -304,6 +313,22 @@ def ros_loop_figures(duration_s: float = 20.0, load_duty: float = 0.3,
             out[f'ros_with_recorder_and_{round(100 * load_duty)}pct_load'] = _one_run(
                 {**cfg, 'load_duty': load_duty}, domain, Path(tmp))
     return out
+
+
+def _params(args: argparse.Namespace) -> list[str]:
+    """Return ``-p`` arguments of both nodes: the sim's masses and ``--param``."""
+    masses = args.masses or ('[0.65, 1.35]' if args.arm == 'paper' else None)
+    named = ([f'masses:={masses}'] if masses else []) + list(args.param)
+    return [a for p in named for a in ('-p', p)]
+
+
+def _scenario(args: argparse.Namespace) -> dict[str, Any]:
+    """Return the scenario of ``--arm``/``--physics`` (as ``demo`` runs it) for a run."""
+    from .demo import _scenario_args
+    ros_args, mu, _ = _scenario_args(args)
+    sim_args = ['-p', f'surface_friction:={mu!r}'] if args.physics == 'mujoco' else []
+    n_f_d = ((0.0, -1.0, 0.0), 1.0) if args.arm == 'paper' else ((0.0, 0.0, -1.0), 5.0)
+    return {'scenario': ros_args, 'sim_args': sim_args, 'n_f_d': n_f_d}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -315,8 +340,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help='busy fraction of one core in the loaded run (0-1)')
     ap.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
                     help='extra node parameter for both nodes, e.g. tick_mode:=joint_state')
-    ap.add_argument('--masses', default='[0.65, 1.35]',
-                    help="the sim's link masses (config/params.yaml arm: 1.3, 0.9 kg)")
+    ap.add_argument('--masses', default=None,
+                    help="the sim's link masses (default for the paper's arm [0.65, 1.35]: 50 %% "
+                    'off its 1.3, 0.9 kg; the Panda: config/panda_table.yaml, 30 %% off)')
+    ap.add_argument('--arm', choices=('paper', 'panda'), default='paper',
+                    help="the paper's 2-link arm or the Panda on a table (as demo --arm)")
+    ap.add_argument('--physics', choices=('paper', 'mujoco'), default='paper',
+                    help="the sim's physics (as demo --physics)")
+    ap.add_argument('--friction', type=float, default=None, help='mujoco: friction mu')
+    ap.add_argument('--tool-mass', type=float, default=None, help='mujoco: tool mass, kg')
     ap.add_argument('--freezes', type=int, default=0,
                     help='SIGSTOP the controller this many times (2 s apart; 7 s apart, once '
                     'theta_hat is learned, when --freeze-ms is 100 or more)')
@@ -334,11 +366,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         figures = {} if args.no_offline else offline_figures(args.old_tree)
         if args.ros:
-            params = [a for p in [f'masses:={args.masses}', *args.param] for a in ('-p', p)]
             figures.update(ros_loop_figures(
-                args.ros_duration, args.load_duty, params, freezes=args.freezes,
+                args.ros_duration, args.load_duty, _params(args), freezes=args.freezes,
                 freeze_ms=args.freeze_ms, one_core=args.one_core,
-                param_storm=args.param_storm, loaded=not args.alone_only))
+                param_storm=args.param_storm, loaded=not args.alone_only,
+                **_scenario(args)))
     except KeyboardInterrupt:
         print('bench: interrupted', file=sys.stderr)
         return 0

@@ -17,7 +17,7 @@ from rosbags.highlevel import AnyReader
 
 
 REPO = Path(__file__).resolve().parents[1]
-DURATION_S = 12.0  # the metrics start at 5 s: 7 s of them
+DURATION_S = 10.0  # the metrics start at 5 s: 5 s of them
 RATE_HZ = 1000.0
 TELEMETRY_HZ = 100.0  # telemetry_rate_hz in config/params.yaml
 DEMO_DOMAIN_ID = str(domain_id('demo'))

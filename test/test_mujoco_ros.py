@@ -27,7 +27,7 @@ from sensor_msgs.msg import JointState
 
 CTRL = 'hybrid_force_controller.ros.controller_node'
 CONFIG = ROOT / 'config'
-RUN_S = 12.0  # of stamps after the first touch
+RUN_S = 7.0  # of stamps after the first 5 s (the metrics window)
 
 
 def _files(*names: str) -> list[str]:

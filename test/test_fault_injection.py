@@ -436,8 +436,10 @@ def test_sim_rejects_bad_commands_holds_then_zeroes(healthy):
         try:
             t_stop = rig.now
             rig.run_for(0.002)  # two watchdog steps: the last controller command is held
-            last = rig.proxy.cmds[-1][1]
-            np.testing.assert_allclose(rig.proxy.js_raw.effort, last)
+            last = np.array(rig.proxy.js_raw.effort)
+            # (this process may read the command after the state the sim stepped with it)
+            rig.wait(lambda: any(np.array_equal(last, c) for _, c in rig.proxy.cmds[-3:]),
+                     'the held effort among the last commands of the controller')
             valid = last + np.array([0.5, -0.5])
             rig.proxy.inject_command(valid.tolist())
             rig.wait(lambda: np.allclose(rig.proxy.js_raw.effort, valid),

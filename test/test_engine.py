@@ -6,6 +6,8 @@ ROS.
 """
 from __future__ import annotations
 
+import functools
+
 from hybrid_force_controller.core.engine import LoopEngine
 from hybrid_force_controller.core.environment import ElasticSurface
 from hybrid_force_controller.core.params import build_params
@@ -92,6 +94,7 @@ def test_inconsistent_timing_is_rejected(bad):
 
 
 # ------------------------------------------------------------------ gaps and late ticks
+@functools.lru_cache(maxsize=None)  # one run serves the tests that read it (none mutates it)
 def hiccup_run(who: str, max_integration_dt: float | None = None, stall_periods: float = 10.0):
     stalls = tuple(Stall(who, t, 0.050) for t in (6.0, 7.0, 8.0))
     overrides = {'stall_periods': stall_periods}

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 
+from .bumpless import cosine_fade
 from .control_law import ApproachRef
 
 __all__ = ['Approach', 'HANDOVER_S', 'Handover']
@@ -106,8 +107,5 @@ class Handover:
 
     def bias(self, t: float) -> tuple[float, float]:
         """Return the part of the gaps left at time ``t`` (zero after HANDOVER_S)."""
-        s = (t - self.t_c) / HANDOVER_S
-        if s >= 1.0:
-            return 0.0, 0.0
-        w = 0.5 * (1.0 + math.cos(math.pi * max(s, 0.0)))
+        w = cosine_fade((t - self.t_c) / HANDOVER_S)
         return w * self.dr, w * self.drdot

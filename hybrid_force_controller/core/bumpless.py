@@ -14,9 +14,14 @@ import math
 
 import numpy as np
 
-__all__ = ['BUMPLESS_S', 'RestartBlend']
+__all__ = ['BUMPLESS_S', 'RestartBlend', 'cosine_fade']
 
 BUMPLESS_S = 0.1  # the blend's length, s
+
+
+def cosine_fade(s: float) -> float:
+    """Return the weight ``(1 + cos(pi s)) / 2`` of a fade: 1 for ``s <= 0``, 0 for ``s >= 1``."""
+    return 0.0 if s >= 1.0 else 0.5 * (1.0 + math.cos(math.pi * max(s, 0.0)))
 
 
 class RestartBlend:
@@ -37,9 +42,8 @@ class RestartBlend:
             return tau
         if math.isnan(self._t0):
             self._t0 = t
-        s = (t - self._t0) / BUMPLESS_S
-        if s >= 1.0:
+        w = cosine_fade((t - self._t0) / BUMPLESS_S)
+        if w == 0.0:
             self._held = None
             return tau
-        w = 0.5 * (1.0 + math.cos(math.pi * s))
         return w * self._held + (1.0 - w) * tau

@@ -163,7 +163,3 @@ class Recovery:
         np.copyto(self.trusted, theta_hat)
         self.has_trusted = True
         return False
-
-    def forget(self) -> None:
-        """Drop the trusted estimate and any episode (a new model or parameter layout)."""
-        self.episode, self.has_trusted, self._calm_since = '', False, math.nan

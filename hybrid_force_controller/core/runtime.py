@@ -260,7 +260,7 @@ class ControllerRuntime:
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref.x_d_W, f_W)
 
-    def _state_step(self, stalled: bool) -> tuple[float, float]:
+    def _state_step(self, gap: bool) -> tuple[float, float]:
         """
         Return the time since the state the last integration used, and the part to integrate.
 
@@ -269,7 +269,7 @@ class ControllerRuntime:
         theta_hat and h integrate is at most ``max_integration_dt``.
         """
         c, t = self._clock, self._in.state.t
-        if stalled:
+        if gap:
             c.t_used = max(c.t_used, t)
             return 0.0, 0.0
         if t <= c.t_used:
@@ -412,8 +412,8 @@ class ControllerRuntime:
         e_W = np.zeros(3)
         if e is not None:
             e_W[self.model.task_index] = e
-        tau = (None if tau is None else tau.copy() if self._cmd_order is None
-               else tau[self._cmd_order])
+        if tau is not None and self._cmd_order is not None:
+            tau = tau[self._cmd_order]  # (efforts are fresh arrays: none is ever mutated)
         return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat)

@@ -111,7 +111,7 @@ class SimNode(Node):
         if sorted(self.joints) != sorted(model.joint_names):
             raise ParameterValidationError(f'joints must be a permutation of {model.joint_names}')
         self.to_model = [self.joints.index(j) for j in model.joint_names]
-        self.to_msg = [model.joint_names.index(j) for j in self.joints]
+        self.to_msg = np.array([model.joint_names.index(j) for j in self.joints])
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
         self.p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
         self.touch_offset = touch_offset(v)  # the tool's radius on MuJoCo, else 0
@@ -293,7 +293,8 @@ class SimNode(Node):
         t_ns = round(meas.t * 1e9) if self.lockstep else time.time_ns()  # ROS time: wall
         js, ft, true = self.js, self.ft, self.true
         q, qdot, tau = js.arrays
-        q[:], qdot[:], tau[:] = meas.q[self.to_msg], meas.qdot[self.to_msg], meas.tau[self.to_msg]
+        for src, dst in ((meas.q, q), (meas.qdot, qdot), (meas.tau, tau)):
+            np.take(src, self.to_msg, out=dst)  # into the message's bytes, no copy between
         if not self.sensor_frozen:  # frozen: the reused message repeats its last reading
             ft.arrays[0][:] = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
             torque = getattr(self.sim, 'torque_S', None)  # MuJoCo's wrist torque sensor

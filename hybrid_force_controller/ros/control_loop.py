@@ -154,6 +154,9 @@ class ControlLoop:
                          parameter_overrides=[Parameter('use_sim_time',
                                                         value=settings.use_sim_time)])
         self._clock = self.node.get_clock()
+        # the loop clock's time, ns: /clock with sim time, else the wall clock (ROS time)
+        self._now_ns = ((lambda: self._clock.now().nanoseconds) if settings.use_sim_time
+                        else time.time_ns)
         self.effort = EffortOutput(self.node, settings.topics['commands'], runtime.model.n)
         self._make_endpoints()
         self._stop = Future()
@@ -226,10 +229,6 @@ class ControlLoop:
                 events.append(('error', f'{kind} failed: {exc!r}'))
             record(kind, clock() - t0)
         return run
-
-    def _now_ns(self) -> int:
-        """Return the loop clock's time: the wall clock (ROS time), or /clock with sim time."""
-        return self._clock.now().nanoseconds if self.settings.use_sim_time else time.time_ns()
 
     def _now(self) -> float:
         return self._now_ns() * 1e-9

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..core.contact import in_contact
-from ..tools.recovery_figures import recovery_figures
+from ..tools.recovery_figures import recovery_figures, theta_steady
 
 __all__ = ['TrackingMeter']
 
@@ -51,15 +51,11 @@ class TrackingMeter:
         with self.lock:
             self.theta.append((time.time(), tuple(msg.data)))
 
-    def theta_steady(self, span_s: float = 2.0, tol: float = 0.01) -> bool:
-        """Say whether theta_hat moved less than ``tol`` (relative) over the last ``span_s``."""
+    def theta_steady(self) -> bool:
+        """Say whether theta_hat is learned (tools/recovery_figures.py ``theta_steady``)."""
         with self.lock:
-            rows = [th for t, th in self.theta if t >= time.time() - span_s]
-            spanned = bool(self.theta) and self.theta[0][0] <= time.time() - span_s
-        if not spanned or len(rows) < 10:
-            return False
-        th = np.array(rows)
-        return bool(np.all(np.ptp(th, axis=0) <= tol * np.abs(th[-1])))
+            thetas = list(self.theta)
+        return theta_steady(np.array([t for t, _ in thetas]), np.array([r for _, r in thetas]))
 
     def recovery(self, t_stop: float, t_release: float, f_d: float) -> dict[str, float]:
         """Return the figures of the recovery from a freeze (tools/recovery_figures.py)."""

@@ -16,10 +16,11 @@ from __future__ import annotations
 import signal
 import time
 
-from hybrid_force_controller.tools.recovery_figures import recovery_figures
+from hybrid_force_controller.tools.recovery_figures import recovery_figures, theta_steady
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
 
 
@@ -43,15 +44,6 @@ def _diag(rig: RealTimeRig, name: str) -> dict:
     return rig.log.fresh_diag(name, rig.procs)
 
 
-def _theta_steady(rig: RealTimeRig, span_s: float = 2.0, tol: float = 0.01) -> bool:
-    """Say whether theta_hat moved less than ``tol`` (relative) over the last ``span_s``."""
-    t, th = rig.log.thetas()
-    if t.size < 10 or t[-1] - t[0] < span_s:
-        return False
-    recent = th[t >= t[-1] - span_s]
-    return bool(np.all(np.ptp(recent, axis=0) <= tol * np.abs(recent[-1])))
-
-
 def _run_past(rig: RealTimeRig, t: float) -> None:
     wait_for(lambda: rig.log.latest_t() > t, f'the force log past {t:.1f}', alive=rig.procs)
 
@@ -62,7 +54,7 @@ def run(tmp_path_factory):
     rig = RealTimeRig(tmp_path_factory.mktemp('stalls'), domain_id('realtime_stalls'))
     try:
         rig.start()  # the masses are learned in about 8 s; then theta_hat holds still
-        wait_for(lambda: rig.settled(F_D, hold_s=1.0) and _theta_steady(rig)
+        wait_for(lambda: rig.settled(F_D, hold_s=1.0) and theta_steady(*rig.log.thetas())
                  and rig.log.diag('hybrid_force_controller').get('theta_trusted', 'none')
                  != 'none', 'theta_hat learned and trusted', alive=rig.procs)
         sim0, freezes = _diag(rig, 'sim'), []
@@ -72,7 +64,7 @@ def run(tmp_path_factory):
             freezes.append((ms, *_freeze(rig, ms)))
             _run_past(rig, freezes[-1][2] + WINDOW_S + 0.2)
         sim1, ctrl1 = _diag(rig, 'sim'), _diag(rig, 'hybrid_force_controller')
-        drop = rig.params.__class__(rig.log.node, 'sim').set_parameters(
+        drop = AsyncParameterClient(rig.log.node, 'sim').set_parameters(
             [Parameter('surface_point', value=(P0 + 0.03 * N_W).tolist())])
         assert wait_future(drop).results[0].successful
         t_drop = time.time()

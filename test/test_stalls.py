@@ -15,7 +15,8 @@ from hybrid_force_controller.core.recovery import Recovery, RecoveryConfig, Reco
 from hybrid_force_controller.core.runtime import Mode
 from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig
 from hybrid_force_controller.core.timing import Stall, TimingModel
-from hybrid_force_controller.tools.recovery_figures import recovery_figures, settle_time
+from hybrid_force_controller.tools.recovery_figures import (recovery_figures, settle_time,
+                                                            theta_steady)
 import numpy as np
 import pytest
 from test_recovery import move_surface
@@ -168,3 +169,11 @@ def test_settle_time_needs_the_whole_hold():
     f[t >= 0.6] = 1.05
     assert settle_time(t, f, 0.0, 1.0, 0.1, 0.2) == pytest.approx(0.6)
     assert np.isnan(settle_time(t, f, 0.0, 1.0, 0.01, 0.2))
+
+
+def test_theta_steady_needs_the_whole_span_within_the_tolerance():
+    t = np.arange(0.0, 3.0, 0.01)
+    theta = np.column_stack([np.ones_like(t), 2.0 + 0.05 * (t < 0.9)])
+    assert theta_steady(t, theta, 2.0, 0.01)  # the step at 0.9 s is older than the span
+    assert not theta_steady(t[:150], theta[:150], 2.0, 0.01)  # less than 2 s of samples
+    assert not theta_steady(t, theta, 2.5, 0.01)  # the step is inside the span

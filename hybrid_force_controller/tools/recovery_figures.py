@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-__all__ = ['recovery_figures', 'settle_time']
+__all__ = ['recovery_figures', 'settle_time', 'theta_steady']
 
 
 def settle_time(t: np.ndarray, f: np.ndarray, t0: float, f_d: float, tol: float = 0.1,
@@ -41,6 +41,21 @@ def settle_time(t: np.ndarray, f: np.ndarray, t0: float, f_d: float, tol: float 
         if not math.isnan(start) and ti - start >= hold_s:
             return float(start - t0)
     return math.nan
+
+
+def theta_steady(t: np.ndarray, theta: np.ndarray, span_s: float = 2.0,
+                 tol: float = 0.01) -> bool:
+    """
+    Say whether theta_hat moved less than ``tol`` (relative) over its last ``span_s``.
+
+    ``t`` (s, increasing) and ``theta`` (rows): False while they cover less than ``span_s``.
+    A freeze is measured against a learned theta_hat only (its change is the figure).
+    """
+    t, theta = np.asarray(t, dtype=float), np.asarray(theta, dtype=float)
+    if t.size < 10 or t[-1] - t[0] < span_s:
+        return False
+    recent = theta[t >= t[-1] - span_s]
+    return bool(np.all(np.ptp(recent, axis=0) <= tol * np.abs(recent[-1])))
 
 
 def recovery_figures(t: np.ndarray, f: np.ndarray, t_freeze: float, t_release: float,

@@ -6,14 +6,18 @@ environment exerts on the tool, in ``tool0``, with noise; published just before 
 state of the same step), ``sim/contact_wrench`` (true force the tool exerts on the
 surface, base frame; at ``telemetry_rate_hz``), ``robot_description`` (its URDF, transient
 local, like robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
-late callbacks, lost periods); takes efforts from ``effort_controller/commands``. Names are
-relative, so ``-r __ns:=/arm1`` moves them all. Until the first valid command the arm is
-held still (brakes).
+late callbacks, lost periods, the plant's mean time per step); takes efforts from
+``effort_controller/commands``. Names are relative, so ``-r __ns:=/arm1`` moves them all.
+Until the first valid command the arm is held still (brakes).
 
 Real time: physics runs on wall time. A timer at ``rate_hz`` integrates every period that
 has passed since the last callback (a late callback catches up, at most
 ``max_catch_up`` periods; older time is dropped and counted) with the last command held,
-as a ros2_control effort controller holds it, then publishes the newest state once.
+as a ros2_control effort controller holds it, and zero effort for the periods that ended
+more than ``command_timeout`` after it; then it publishes the newest state once. A command
+first lets the periods that ended before it run on the old one. So the arm falls when
+the controller stops even if this node was held meanwhile (a publish can block on a
+stopped reader's shared-memory port in Fast DDS).
 Lockstep (``lockstep:=true``, the deterministic reproduction mode) owns the time: it
 publishes the state and ``/clock`` (equal stamps) and steps once per received command; a
 0.2 s wall watchdog steps anyway (held or zero effort, brakes before the first command), so
@@ -30,6 +34,7 @@ mujoco_plant.py). Both run on the same timers, watchdog and catch-up.
 """
 from __future__ import annotations
 
+import math
 import sys
 import time
 from typing import Any, Callable
@@ -64,7 +69,7 @@ from std_msgs.msg import Float64MultiArray, Header, String
 from .mujoco_params import MUJOCO_SCHEMA
 from .plants import make_plant, touch_offset
 
-__all__ = ['SIM_SCHEMA', 'SimNode', 'main']
+__all__ = ['SIM_SCHEMA', 'SimNode', 'held_periods', 'main']
 
 WATCHDOG_S = 0.2
 SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
@@ -93,6 +98,17 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
      0.0, 1e5, {}),
 )) + MUJOCO_SCHEMA + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
+
+
+def held_periods(t_begin: float, periods: int, dt: float, t_cmd: float, timeout: float) -> int:
+    """
+    Count the periods, of ``periods`` from ``t_begin``, that end within ``timeout`` of ``t_cmd``.
+
+    Period k (1-based) ends at ``t_begin + k dt``; the plant holds the command for those, and
+    applies zero effort for the rest (its watchdog).
+    """
+    span = (t_cmd + timeout - t_begin) / dt + 1e-9  # -inf before the first command
+    return 0 if span <= 0.0 else min(periods, math.floor(span))  # math: 1 kHz, no numpy
 
 
 class SimNode(Node):
@@ -125,6 +141,7 @@ class SimNode(Node):
         self.true_every = 0 if rate <= 0.0 else max(1, round(v['rate_hz'] / rate))
         self.base_frame, self.tool_frame = model.base_link, model.end_effector_link
         self.tau_cmd: np.ndarray | None = None
+        self.tau_zero = np.zeros(model.n)  # the watchdog's effort (model order, as tau_cmd)
         self.t_cmd = self.t_pub = -np.inf
         self.counters = {'steps': 0, 'commands': 0, 'commands_rejected': 0,
                          'watchdog_steps': 0, 'late_callbacks': 0, 'lost_periods': 0,
@@ -132,6 +149,7 @@ class SimNode(Node):
         self.command_rate = RateMeter()
         self.command_gaps, self.state_gaps = GapMeter(), GapMeter()  # wall, per report
         self._timed_out = False
+        self._physics_s, self._physics_steps0 = 0.0, 0  # time in the plant since the report
         self._make_messages()
         self._make_endpoints(urdf)
         self._t_wall = time.monotonic()
@@ -185,7 +203,7 @@ class SimNode(Node):
                                  raw=True)  # read from the CDR bytes: cheaper at 1 kHz
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         period, tick = ((WATCHDOG_S / 4, self._on_watchdog) if self.lockstep
-                        else (self.dt, self._on_timer))
+                        else (self.dt, self._advance))
         self.timer = self.create_timer(period, self._guarded('timer', tick), clock=steady)
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
 
@@ -231,15 +249,25 @@ class SimNode(Node):
                                       ' finite efforts; keeping the last valid one',
                                       throttle_duration_sec=1.0)
             return
+        t_cmd = self._time()  # before the catch-up, whose publish may block
+        if not self.lockstep:  # the periods that ended before it came ran on the old one
+            self._advance()
         self.counters['commands'] += 1
         self.command_rate.count += 1
         self.command_gaps.mark(time.monotonic())
-        self.tau_cmd, self.t_cmd = tau[self.to_model], self._time()
+        self.tau_cmd, self.t_cmd = tau[self.to_model], t_cmd
+        self._timed_out = False
         if self.lockstep:
             self._step(self.tau_cmd)
 
-    def _on_timer(self) -> None:
-        """Real time: integrate every period since the last callback (held command)."""
+    def _advance(self) -> None:
+        """
+        Real time (the timer's callback): integrate every period that ended since the last one.
+
+        The command is held for the periods that ended within ``command_timeout`` of it, zero
+        effort after (the watchdog per period, as on a robot that kept running while this
+        callback waited, e.g. on a publish blocked in the middleware).
+        """
         periods = int((time.monotonic() - self._t_wall) / self.dt)
         if periods <= 0:
             return
@@ -249,40 +277,56 @@ class SimNode(Node):
             self.counters['lost_periods'] += periods - self.max_catch_up
             self._t_wall += (periods - self.max_catch_up) * self.dt
             periods = self.max_catch_up
+        t_begin = self._t_wall
         self._t_wall += periods * self.dt
-        self._step(self._effort(), periods)
+        self._run(t_begin, periods)
 
     def _on_watchdog(self) -> None:
         """Lockstep: step anyway when no command came for WATCHDOG_S (wall)."""
         if time.monotonic() - self.t_pub >= WATCHDOG_S:
             self.counters['watchdog_steps'] += 1
-            self._step(self._effort())
+            self._run(self.sim.t, 1)
 
     def _time(self) -> float:
         """Seconds on the clock that command_timeout uses: sim time in lockstep, else wall."""
         return self.sim.t if self.lockstep else time.monotonic()
 
-    def _effort(self) -> np.ndarray | None:
-        """Held command; zeros once it is older than command_timeout; None (brakes) before."""
-        if self.tau_cmd is None or self._time() - self.t_cmd <= self.command_timeout:
-            self._timed_out = False
-            return self.tau_cmd
-        if not self._timed_out:  # one count and one warning per timeout
+    def _run(self, t_begin: float, periods: int) -> None:
+        """
+        Step ``periods`` from ``t_begin`` (on :meth:`_time`'s clock), then publish.
+
+        The watchdog (:func:`held_periods`): the command for the periods that end within
+        ``command_timeout`` of it, zero effort after (one count and warning per timeout);
+        brakes before the first command.
+        """
+        held = periods if self.tau_cmd is None else held_periods(
+            t_begin, periods, self.dt, self.t_cmd, self.command_timeout)
+        if held == periods:
+            self._step(self.tau_cmd, periods)
+            return
+        if not self._timed_out:
             self._timed_out = True
             self.counters['command_timeouts'] += 1
             self.get_logger().warning('no valid command within command_timeout: zero effort')
-        return np.zeros_like(self.tau_cmd)
+        if held:
+            self._integrate(self.tau_cmd, held)
+        self._step(self.tau_zero, periods - held)
 
     def _step(self, tau: np.ndarray | None, periods: int = 1) -> None:
-        """``periods`` steps of 1/rate_hz (``None``: brakes hold the arm, time advances)."""
+        """``periods`` steps of 1/rate_hz, then publish (``None``: brakes hold the arm)."""
+        self._publish(self._integrate(tau, periods))
+
+    def _integrate(self, tau: np.ndarray | None, periods: int) -> Measurement:
+        t0 = time.perf_counter()
         if tau is None:
             self.sim.t += periods * self.dt
             meas = self.sim.measure()
         else:
             for _ in range(periods):
                 meas = self.sim.step(tau, self.dt)
+        self._physics_s += time.perf_counter() - t0
         self.counters['steps'] += periods
-        self._publish(meas)
+        return meas
 
     def _publish(self, meas: Measurement) -> None:
         """
@@ -321,8 +365,12 @@ class SimNode(Node):
     def _on_diagnostics(self) -> None:
         stamp = (Time(nanoseconds=round(self.sim.t * 1e9)) if self.lockstep
                  else self.get_clock().now()).to_msg()
+        steps = self.counters['steps'] - self._physics_steps0
+        physics_us = 1e6 * self._physics_s / steps if steps else float('nan')
+        self._physics_s, self._physics_steps0 = 0.0, self.counters['steps']
         values = {**self.counters,
                   'commands_per_s': f'{self.command_rate.rate(time.monotonic()):.4g}',
+                  'physics_step_mean_us': f'{physics_us:.4g}',
                   **{k: f'{v:.4g}' for k, v in self.command_gaps.take('command_gap').items()},
                   **{k: f'{v:.4g}' for k, v in self.state_gaps.take('state_gap').items()},
                   'sim_time_s': f'{self.sim.t:.4f}', 'lockstep': self.lockstep}

@@ -1,0 +1,90 @@
+"""
+The sim's command watchdog acts per period, also over periods its thread was held for.
+
+On a robot the hardware keeps running while nobody reads; the sim's thread can be held, by a
+publish that blocks on a stopped reader's shared-memory port (Fast DDS), as when the
+controller is frozen with SIGSTOP while it holds that port's lock (py-spy showed the sim in
+``SharedMemManager::Port::try_push`` under ``taskset -c 0``). The periods it missed are run
+when it resumes: the old command for ``command_timeout`` after it came, zero effort after.
+"""
+import math
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
+from ros_helpers import domain_id
+from sim_node.sim_node import held_periods, SimNode
+from std_msgs.msg import Float64MultiArray
+
+
+TIMEOUT_S = 0.2
+
+
+@pytest.mark.parametrize('t_cmd, expected', [
+    (0.0, 20),    # the command at t_begin: held for 0.2 s = 20 of the 30 periods of 10 ms
+    (-0.05, 15),  # 50 ms older: 15
+    (-1.0, 0),    # timed out before the first period ended: none
+    (0.5, 30),    # fresh for all of them
+    (-math.inf, 0),  # no command yet
+])
+def test_held_periods_end_within_the_timeout_of_the_command(t_cmd, expected):
+    assert held_periods(0.0, 30, 0.01, t_cmd, TIMEOUT_S) == expected
+
+
+def test_held_periods_includes_the_period_ending_at_the_timeout():
+    """Period k ends at t_begin + k dt; it is held when that is <= t_cmd + timeout."""
+    assert held_periods(0.0, 30, 0.01, 0.0, 0.1) == 10
+    assert held_periods(0.0, 30, 0.01, 0.0, 0.1 - 1e-6) == 9
+
+
+@pytest.fixture
+def sim():
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('sim_watchdog'))
+    node = SimNode(context=context, parameter_overrides=[
+        Parameter('command_timeout', value=TIMEOUT_S), Parameter('max_catch_up', value=10000)])
+    yield node
+    node.destroy_node()
+    context.try_shutdown()
+
+
+def _command(tau) -> bytes:
+    return serialize_message(Float64MultiArray(data=list(tau)))
+
+
+def _command_after(sim, wait_s: float, tau) -> tuple[int, int]:
+    """
+    Send ``tau`` ``wait_s`` from now; return the steps its callback ran and the periods passed.
+
+    The wait is a bare sleep: the stimulus (the held thread), not a wait on a condition.
+    """
+    steps, t = sim.counters['steps'], time.monotonic()
+    time.sleep(wait_s)
+    sim._on_command(_command(tau))
+    return sim.counters['steps'] - steps, round((time.monotonic() - t) / sim.dt) + 1
+
+
+def test_a_command_after_a_held_thread_first_runs_the_missed_periods(sim):
+    """
+    A command runs the periods that ended before it on the old one, then takes over.
+
+    20 ms after the first command: about 20 periods, no timeout. After 0.5 s held (the
+    stimulus: a bare sleep stands for the blocked publish): about 500 periods, the first
+    200 on the old command, the rest on zero effort, counted as one timeout.
+    """
+    tau0, tau1 = np.array([0.5, 0.2]), np.array([0.4, 0.1])
+    sim._on_command(_command(tau0))
+    steps, passed = _command_after(sim, 0.02, tau0)
+    assert 15 <= steps <= passed, steps
+    assert sim.counters['command_timeouts'] == 0
+    steps, passed = _command_after(sim, 0.5, tau1)
+    assert 495 <= steps <= passed, steps
+    assert sim.counters['command_timeouts'] == 1
+    assert np.array_equal(sim.tau_cmd, tau1)  # taken after the catch-up, fresh
+    time.sleep(0.01)
+    sim._advance()  # the timer's call: the periods since run on the new command
+    assert sim.counters['command_timeouts'] == 1

@@ -32,6 +32,14 @@ import numpy as np
 from .mujoco_params import MujocoOptions
 from .mujoco_scene import build_scene, check_surface, set_surface
 
+# mj_step's integrator after its mj_forward, by opt.integrator (RK4 evaluates the dynamics
+# four times: it keeps the full mj_step)
+_INTEGRATORS = {int(mujoco.mjtIntegrator.mjINT_EULER): mujoco.mj_Euler,
+                int(mujoco.mjtIntegrator.mjINT_IMPLICIT): mujoco.mj_implicit,
+                int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): mujoco.mj_implicit}
+
+_STAGE_VEL = mujoco.mjtStage.mjSTAGE_VEL
+
 __all__ = ['MujocoPlant']
 
 
@@ -67,8 +75,28 @@ class MujocoPlant:
         self.tau = np.zeros(self.n)
         self.torque_S = np.zeros(3)
         self._braked = True
+        # measure() computed every stage at the current state (step() reuses it; measure sets it)
+        self._forwarded = False
+        self._integrate = _INTEGRATORS.get(int(self.m.opt.integrator))  # None: full mj_step
+        self.reuse_forward = True  # False: a full mj_step every step (the reference, tests)
         self._tau_c = None  # the sim node clears it on a surface change (ArmSimulator's cache)
-        self._force6 = np.zeros(6)
+        self._h = self.m.opt.timestep
+        self._bind_views()
+
+    def _bind_views(self) -> None:
+        """
+        Make once the views into MjData that step() and measure() read and write.
+
+        MjData's arrays never move, and each attribute access would build a new view: at
+        1 kHz the glue cost more than MuJoCo itself.
+        """
+        d, sc = self.d, self.scene
+        self._qpos, self._qvel, self._qfrc_applied = d.qpos, d.qvel, d.qfrc_applied
+        self._F_sensor = d.sensordata[sc.force_adr:sc.force_adr + 3]
+        self._T_sensor = d.sensordata[sc.torque_adr:sc.torque_adr + 3]
+        self._p_ee, self._R_ee = d.xpos[sc.ee_body], d.xmat[sc.ee_body].reshape(3, 3)
+        # the force on the table top (cfrc_ext: contacts, no applied force on it), MuJoCo world
+        self._f_plate = d.cfrc_ext[sc.plate, 3:6]
 
     @property
     def surface(self) -> ElasticSurface | None:
@@ -79,6 +107,7 @@ class MujocoPlant:
     def surface(self, surface: ElasticSurface | None) -> None:
         set_surface(self.scene, self.d, surface)
         self._surface = surface
+        self._forwarded = False  # the table moved: the position stage is stale
 
     def check_surface(self, surface: ElasticSurface) -> None:
         """Raise SurfaceError when ``surface`` cannot be set (the sim node validates with it)."""
@@ -100,19 +129,27 @@ class MujocoPlant:
         if not (dt > 0.0 and math.isfinite(dt)):
             raise SimulatorError(f'dt must be finite and > 0, got {dt}')
         h = dt / self.substeps
-        if self.m.opt.timestep != h:
-            self.m.opt.timestep = h
+        if h != self._h:
+            self.m.opt.timestep = self._h = h
         self.tau = tau.copy()
-        self.d.qfrc_applied[self.scene.dof] = tau
-        mujoco.mj_step(self.m, self.d, self.substeps)
+        self._qfrc_applied[self.scene.dof] = tau
+        rest = self.substeps
+        if self._forwarded and self._integrate is not None and self.reuse_forward:
+            # measure() ran the position and velocity stages at this very state: mj_step's
+            # own mj_forward would repeat them. Only the acceleration stage (the new tau)
+            # runs, then mj_step's integrator: the same numbers, about one forward less.
+            mujoco.mj_forwardSkip(self.m, self.d, _STAGE_VEL, 1)
+            self._integrate(self.m, self.d)
+            rest -= 1
+        if rest:
+            mujoco.mj_step(self.m, self.d, rest)
         self._braked = False
         self.t += dt
         return self.measure()
 
     def hold(self, dt: float) -> Measurement:
         """Advance ``dt`` seconds with the arm held still by its brakes (before a command)."""
-        self.d.qvel[:] = 0.0
-        self._braked = True
+        self._braked = True  # measure() zeroes the velocity
         self.t += dt
         return self.measure()
 
@@ -120,35 +157,24 @@ class MujocoPlant:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""
         m, d, sc = self.m, self.d, self.scene
         if self._braked:  # at rest: the brakes take the torques, nothing accelerates
-            d.qvel[:] = 0.0
+            self._qvel[:] = 0.0
             d.qacc[:] = 0.0
             mujoco.mj_inverse(m, d)
         else:
             mujoco.mj_forward(m, d)
-        sensor = d.sensordata
-        a_f, a_t = sc.force_adr, sc.torque_adr
-        self.torque_S = -sensor[a_t:a_t + 3]
-        p_W, R_W_ee = d.xpos[sc.ee_body].copy(), d.xmat[sc.ee_body].reshape(3, 3).copy()
+        self.torque_S = -self._T_sensor
+        p_W, R_W_ee = self._p_ee.copy(), self._R_ee.copy()
         # MuJoCo's force sensor reads the force the hand exerts on the tool (site frame): minus
         # the published F_S, so f_W = -R F_S is R times the reading
-        f_W = R_W_ee @ sensor[a_f:a_f + 3]
-        f_true = self._contact_force_root() if d.ncon else np.zeros(3)
+        f_W = R_W_ee @ self._F_sensor
+        # the force the tool exerts on the surface is the one the table top feels (cfrc_ext)
+        f_true = self._f_plate.copy()
         if sc.rotated:  # base_link is not the URDF root
             R = sc.R_W_root
             p_W, R_W_ee, f_W, f_true = R @ p_W + sc.o_W, R @ R_W_ee, R @ f_W, R @ f_true
         if self.noise_sigma:
             f_W = f_W + self.rng.normal(0.0, self.noise_sigma, 3)
         f_n = math.sqrt(f_true @ f_true)
-        return Measurement(self.t, d.qpos[sc.qpos], d.qvel[sc.dof], self.tau, p_W, R_W_ee, f_W,
-                           f_true, in_contact(f_n))
-
-    def _contact_force_root(self) -> np.ndarray:
-        """Force the tool exerts on the surface, MuJoCo world (the URDF root)."""
-        d, f, tool = self.d, np.zeros(3), self.scene.tool_geom
-        for i in range(d.ncon):
-            mujoco.mj_contactForce(self.m, d, i, self._force6)
-            contact = d.contact[i]
-            # the force geom1 exerts on geom2, in the contact frame (normal from 1 to 2)
-            on_2 = contact.frame.reshape(3, 3).T @ self._force6[:3]
-            f += on_2 if contact.geom1 == tool else -on_2
-        return f
+        self._forwarded = not self._braked  # mj_forward ran every stage at this state
+        return Measurement(self.t, self._qpos[sc.qpos], self._qvel[sc.dof], self.tau, p_W,
+                           R_W_ee, f_W, f_true, in_contact(f_n))

@@ -6,6 +6,8 @@ The MuJoCo plant (``physics:=mujoco``) offline: fidelity, contact, sensor, frict
 * a static press at 2, 5 and 20 N gives the stiffness parameter (N/m) within 2 %;
 * the wrist sensor reads the tool's weight out of contact, and in contact the true contact
   force plus the weight, in the end-effector frame;
+* the true contact force (the table top's ``cfrc_ext``) is MuJoCo's contact force, friction
+  included;
 * with friction mu the tool sticks under a side push below mu f_n and slides above it;
 * the offline engine runs the controller against it (the plant interface of ArmSimulator);
 * bad MuJoCo settings are refused with a typed error.
@@ -172,3 +174,42 @@ def test_run_time_surface_changes_move_the_table_and_bound_its_stiffness():
     assert float(n_W @ meas.f_true_W) / depth == pytest.approx(4.0 * 1700.0, rel=0.02)
     with pytest.raises(SurfaceError, match='too high for the plate'):
         plant.surface = ElasticSurface.create(5.0 * 1700.0, surface.x0_W, n_W)
+
+
+@pytest.mark.parametrize('name', ['paper', 'panda'])
+def test_a_step_that_reuses_measures_forward_pass_is_bitwise_the_full_mj_step(name):
+    """step() runs only the acceleration stage after measure() (mujoco_plant.py): same numbers."""
+    runs = []
+    for reuse in (False, True):
+        model, plant, n_W = _plant(name)
+        plant.reuse_forward = reuse
+        meas = _press(model, plant, 5.0 * n_W, steps=300)  # in contact: the constraint solver
+        runs.append((meas.q, meas.qdot, meas.f_W, meas.f_true_W))
+    for full, reused in zip(*runs):
+        np.testing.assert_array_equal(full, reused)
+    assert np.linalg.norm(runs[0][3]) > 1.0  # pressing, so the contact path was exercised
+
+
+def _contact_forces_on_surface_W(plant):
+    """Sum mj_contactForce over the contacts: the force the tool exerts on the surface, base."""
+    d, f_root, f6 = plant.d, np.zeros(3), np.zeros(6)
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(plant.m, d, i, f6)
+        contact = d.contact[i]
+        on_2 = contact.frame.reshape(3, 3).T @ f6[:3]  # geom1 on geom2, contact frame -> world
+        f_root += on_2 if contact.geom1 == plant.scene.tool_geom else -on_2
+    return plant.scene.R_W_root @ f_root
+
+
+@pytest.mark.parametrize('name', ['paper', 'panda'])
+def test_true_force_is_the_sum_of_mujocos_contact_forces(name):
+    """f_true_W, read from the table top's cfrc_ext, is the contact force, friction included."""
+    model, plant, n_W = _plant(name, 3000.0, surface_friction=0.3, tool_mass=0.25)
+    t_W = np.cross(n_W, [0.0, 0.0, 1.0] if abs(n_W[2]) < 0.9 else [1.0, 0.0, 0.0])
+    meas = _press(model, plant, 5.0 * n_W + 3.0 * t_W, steps=300)  # sliding: friction rows
+    np.testing.assert_allclose(meas.f_true_W, _contact_forces_on_surface_W(plant), atol=1e-12)
+    assert abs(t_W @ meas.f_true_W) > 0.5 and n_W @ meas.f_true_W > 2.0, meas.f_true_W
+    meas = plant.hold(1e-3)  # the brakes: inverse dynamics, the same contact read
+    np.testing.assert_allclose(meas.f_true_W, _contact_forces_on_surface_W(plant), atol=1e-12)
+    plant.surface = None
+    assert np.all(plant.step(np.zeros(model.n), 1e-3).f_true_W == 0.0)

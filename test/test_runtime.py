@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 
+from hybrid_force_controller.core.effort import SafeHold
 from hybrid_force_controller.core.engine import LoopEngine
 from hybrid_force_controller.core.environment import ElasticSurface, sensor_wrench_from_f_W
 from hybrid_force_controller.core.params import build_params
@@ -42,16 +43,19 @@ class Loop:
     returns the runtime's output and the measurement it was computed from.
     """
 
-    def __init__(self, model: RobotModel, **overrides) -> None:
+    def __init__(self, model: RobotModel, plant_masses=None, input_hook=None,
+                 **overrides) -> None:
         self.model = model
         self.params = build_params(model, overrides)
         self.rt = ControllerRuntime(model, self.params)
         p0 = model.kinematics(Q0, np.zeros(model.n)).p_W
-        self.sim = ArmSimulator(model, ElasticSurface.create(1700.0, p0, self.params.law.n),
+        plant = model if plant_masses is None else model.with_theta(plant_masses)
+        self.sim = ArmSimulator(plant, ElasticSurface.create(1700.0, p0, self.params.law.n),
                                 Q0, substeps=2)
         self.feeding = True
+        hook = input_hook or (lambda t, msg: msg)
         self.engine = LoopEngine(self.rt, self.sim, 60.0,
-                                 input_hook=lambda t, msg: msg if self.feeding else None)
+                                 input_hook=lambda t, msg: hook(t, msg) if self.feeding else None)
 
     @property
     def t(self) -> float:
@@ -292,3 +296,83 @@ def test_resume_returns_to_running_without_torque_jump(model, outage):
     jump = np.abs(first_run[2] - last_safe[2]).max()
     assert jump < 10.0, f'effort jumps by {jump:.1f} N m: {last_safe[2]} -> {first_run[2]}'
     assert not np.any(np.abs(first_run[2]) >= loop.params.runtime.effort_limits)
+
+
+T_FREEZE, FREEZE_S = 3.0, 1.2
+
+
+@pytest.fixture(scope='module')
+def frozen_wrench(model):
+    """
+    Freeze the wrench for 1.2 s at 3 s, then track for 1 s.
+
+    Masses 0.65 and 1.35 kg (the law's residual is not zero); joint states keep coming.
+    """
+    held = {}
+
+    def freeze(t, msg):
+        q, qdot, F_S = msg
+        if T_FREEZE <= t < T_FREEZE + FREEZE_S:
+            F_S = held.setdefault('F_S', F_S)
+        return q, qdot, F_S
+    loop = Loop(model, plant_masses=[0.65, 1.35], input_hook=freeze)
+    rows = []
+    while loop.t < T_FREEZE + FREEZE_S + 1.0:
+        out, meas = loop.step()
+        rows.append((loop.t, out.mode, out.tau, float(loop.params.law.n @ meas.f_true_W),
+                     meas.p_W, model.kinematics(meas.q, meas.qdot).xdot, loop.rt.run_time))
+    return loop, rows
+
+
+def test_safe_hold_is_continuous_stops_the_tool_and_keeps_contact(model, frozen_wrench):
+    """
+    A frozen wrench: safe mode after state_timeout (SafeHold, effort.py).
+
+    At entry the effort is the last one out (no step); the tool brakes from the sine's 0.1 m/s
+    to rest within 2 v0 SafeHold.T_STOP = 2 cm, the contact force stays within 0.1 N of
+    f_d = 1 N (it rose 0.085 N), and after the fault the reference goes on from where it paused
+    and the force is back within 0.05 N at once.
+    """
+    loop, rows = frozen_wrench
+    i = next(k for k, r in enumerate(rows) if r[1] == 'safe')
+    last_run, first_safe = rows[i - 1], rows[i]
+    assert last_run[1] == 'running' and T_FREEZE < first_safe[0] < T_FREEZE + 0.15
+    np.testing.assert_allclose(first_safe[2], last_run[2], atol=1e-9)
+    safe = [r for r in rows if r[1] == 'safe']
+    assert safe[-1][0] >= T_FREEZE + FREEZE_S - 0.01, 'left safe mode early'
+    forces = [r[3] for r in safe]
+    v0 = np.linalg.norm(safe[0][5])
+    print(f'safe mode: force {min(forces):.3f}..{max(forces):.3f} N, speed {v0:.3f} -> '
+          f'{np.linalg.norm(safe[-1][5]):.5f} m/s, '
+          f'travel {np.linalg.norm(safe[-1][4] - safe[0][4]) * 1e3:.2f} mm')
+    assert max(abs(f - 1.0) for f in forces) <= 0.1, (min(forces), max(forces))
+    assert np.linalg.norm(safe[-1][5]) < 1e-3
+    assert np.linalg.norm(safe[-1][4] - safe[0][4]) <= 2 * v0 * SafeHold.T_STOP + 2e-3
+    j = next(k for k in range(i, len(rows)) if rows[k][1] == 'running')
+    # the reference's time paused over the hold: it goes on from where it was (1 ms ticks)
+    assert 0.0 < rows[j][6] - last_run[6] <= 3 * DT, (last_run[6], rows[j][6])
+    after = [abs(r[3] - 1.0) for r in rows if r[0] >= T_FREEZE + FREEZE_S + 0.01]
+    print(f'after: worst force error {max(after):.4f} N')
+    assert max(after) <= 0.05
+
+
+def test_safe_hold_reference_is_a_critically_damped_stop(model):
+    """SafeHold.reference (effort.py): starts at (x0, v0), ends at rest 2 v0 T further on."""
+    hold = SafeHold(model)
+    hold.t0, hold.x0, hold.v0 = 5.0, np.array([1.0, 1.6]), np.array([-0.1, 0.02])
+    T = SafeHold.T_STOP
+    x, v = hold.reference(5.0)
+    np.testing.assert_allclose(x, hold.x0)
+    np.testing.assert_allclose(v, hold.v0)
+    x, v = hold.reference(5.0 + 40 * T)
+    np.testing.assert_allclose(x, hold.x0 + 2 * T * hold.v0, atol=1e-12)
+    np.testing.assert_allclose(v, 0.0, atol=1e-12)
+    for t in (5.03, 5.1, 5.25):  # xdot_h is the derivative of x_h
+        h = 1e-6
+        dx = (hold.reference(t + h)[0] - hold.reference(t - h)[0]) / (2 * h)
+        np.testing.assert_allclose(dx, hold.reference(t)[1], atol=1e-8)
+    # the deceleration starts at 0 (no jerk at entry) and peaks at v0 / (e T) at t0 + T
+    a0 = (hold.reference(5.0 + 1e-6)[1] - hold.v0) / 1e-6
+    assert np.abs(a0).max() < 1e-3
+    a_T = (hold.reference(5.0 + T + 1e-6)[1] - hold.reference(5.0 + T - 1e-6)[1]) / 2e-6
+    np.testing.assert_allclose(a_T, -hold.v0 / (math.e * T), rtol=1e-5)

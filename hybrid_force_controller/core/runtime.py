@@ -11,10 +11,12 @@ force filter), the reference, the contact state and an explicit mode (:class:`Mo
 * ``APPROACH``: contact lost: the normal reference moves into the surface (approach.py);
 * ``NO_SURFACE``: the approach travelled ``approach_limit`` without contact: hold, report;
 * ``SAFE``: inputs older than ``state_timeout`` (a frozen wrench counts as old), or the
-  law failed: hold the arm (effort.py ``SafeHold``), theta_hat and h frozen.
+  law failed: stop the tool smoothly and hold it (effort.py ``SafeHold``, continuous with
+  the last effort), theta_hat and h frozen.
 
 Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference
-from the arm's position and velocity (no effort jump); the hand-over from an approach to
+from the arm's position and velocity (no effort jump; after ``SAFE`` the reference goes on from
+where it paused); the hand-over from an approach to
 the force loop aligns the force integral so r is continuous. theta_hat and h integrate
 over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
 tick without a new state recomputes the command and integrates nothing, and a late state
@@ -53,13 +55,14 @@ class _Clock:
     """
     The run's times, s.
 
-    ``t0`` the stamp of its first state (the reference's origin), the latest tick, and the stamp of
-    the state the last integration used.
+    ``t0`` the stamp of its first state (the reference's origin, moved on by the time spent in
+    safe mode), the latest tick, and the stamp of the state the last integration used.
     """
 
     t0: float | None = None
     t_tick: float = -math.inf
     t_used: float = -math.inf
+    t_pause: float | None = None  # the reference's time stopped here (safe mode's entry)
 
 
 _STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
@@ -283,9 +286,19 @@ class ControllerRuntime:
         return dt, min(dt, limit)
 
     def _start(self, touching: bool) -> None:
-        """(Re)start: the reference blends from the arm's position and velocity."""
-        c = self._clock
-        c.t0 = self._in.state.t if c.t0 is None else c.t0
+        """
+        (Re)start: the reference blends from the arm's position and velocity.
+
+        After safe mode the reference goes on from where it paused: its time stood still
+        during the hold, so the task is not cut short and the blend has no distance to catch
+        up (a sine that ran on moved the force by up to 0.25 N while catching up).
+        """
+        c, t = self._clock, self._in.state.t
+        if c.t0 is None:
+            c.t0 = t
+        elif self.mode == Mode.SAFE and c.t_pause is not None:
+            c.t0 += max(t - c.t_pause, 0.0)
+        c.t_pause = None
         self.mode = Mode.RUNNING
         self._blend_from_arm()
         if not touching and self._approach.speed > 0.0:
@@ -380,16 +393,18 @@ class ControllerRuntime:
                            touching and self.mode == Mode.RUNNING, self.ctrl.theta_hat)
 
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
-        """Hold (effort.SafeHold); the velocity is damped only while it is fresh."""
+        """Hold (effort.SafeHold): a smooth stop, impedance only while the joint state is fresh."""
+        law, s = self._params.law, self._in.state
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
-            self._hold.latch(f_W)
-            self._begin('safe_mode', t)
+            self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
+            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._tau_last)
+            self._clock.t_pause = s.t  # the reference pauses (_start)
         self.mode = Mode.SAFE
-        law, s = self._params.law, self._in.state
         fresh = t - s.t <= self._params.runtime.state_timeout
-        tau, p_W = self._hold.effort(s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.k_null, fresh)
+        tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
+                                     law.k_null, fresh)
         tau, _ = self._limiter(tau)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)
 

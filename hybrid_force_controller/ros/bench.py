@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 from pathlib import Path
 import subprocess
@@ -196,10 +197,13 @@ def _sim_window(reports: list[dict[str, str]]) -> dict[str, float]:
                                   'state_gap_p99_ms', 'state_gap_max_ms')}
 
 
-def _controller_holds(ctrl: dict[str, str]) -> dict[str, float]:
-    """Return the controller's holds: the longest, and each callback kind's max and p99.9."""
+def _controller_holds(ctrl: dict[str, str]) -> dict[str, Any]:
+    """Return the controller's holds: the longest (and where it went), each kind's max, p99.9."""
     keys = [k for k in ctrl if k.startswith('hold_') or k.startswith('loop_hold_')]
-    return {f'controller_{k}': float(ctrl[k]) for k in keys if not k.endswith('_count')}
+    out: dict[str, Any] = {f'controller_{k}': float(ctrl[k]) for k in keys
+                           if not k.endswith(('_count', '_where'))}
+    out['controller_loop_hold_max_where'] = ctrl.get('loop_hold_max_where', '')
+    return out
 
 
 def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
@@ -267,6 +271,10 @@ def _figures(cfg, diag, cpu, sim0, sim1, elapsed, ctrl) -> dict[str, Any]:
         figures[f'controller_{key}'] = float(ctrl.get(key, 'nan'))
     figures.update(_controller_holds(ctrl))
     figures['sim_lost_periods'] = int(sim1.get('lost_periods', 0))
+    physics = [float(r.get('physics_step_mean_us', 'nan')) for r in diag.sim_reports(sim0, sim1)]
+    physics = [v for v in physics if math.isfinite(v)]  # the plant's time per step, each report
+    figures['sim_physics_step_mean_us'] = round(float(np.mean(physics)), 2) if physics \
+        else float('nan')
     return figures
 
 

@@ -44,10 +44,11 @@ from .cdr import read_joint_state, read_wrench_stamped
 from .loop_timing import DelayStats, RateMeter
 from .runner import make_executor
 from .telemetry import EffortOutput
-from ..core.loop_stats import HoldStats, LoopStats
+from ..core.loop_stats import hold_phases, HoldStats, LoopStats
 from ..core.runtime import ControllerRuntime, InputError
 
-__all__ = ['ControlLoop', 'LoopSettings', 'schedule_process', 'set_thread_scheduling']
+__all__ = ['ControlLoop', 'LoopSettings', 'one_cpu_reason', 'rt_budget_on', 'schedule_process',
+           'set_thread_scheduling']
 
 CALLBACK_KINDS = ('joint_states', 'wrench', 'timer')  # what runs on the control thread
 WATCHDOG_PERIODS = 5  # tick_mode joint_state: the watchdog checks every 5 periods
@@ -72,6 +73,40 @@ class LoopSettings:
         self.thread_priority, self.cpu_affinity = thread_priority, tuple(cpu_affinity)
 
 
+def rt_budget_on() -> bool:
+    """Say whether the kernel limits real-time threads (``kernel.sched_rt_runtime_us`` >= 0)."""
+    try:
+        with open('/proc/sys/kernel/sched_rt_runtime_us', encoding='ascii') as f:
+            return int(f.read().strip()) >= 0
+    except (OSError, ValueError):
+        return True  # unknown: assume the default budget
+
+
+def one_cpu_reason() -> str:
+    """
+    Say why SCHED_FIFO is not used when this process may run on one CPU only ('' otherwise).
+
+    ``taskset -c 0`` or a 1-core PC: the real-time threads of every process on that CPU
+    share its real-time budget (``kernel.sched_rt_runtime_us``, 95 % of each second). A sim
+    and a controller at FIFO on one CPU used it up here: the kernel then stopped every FIFO
+    thread for up to 50 ms (`RT throttling activated`), and the plant's watchdog dropped the
+    arm (537 ms without a command, 17 timeouts in 20 s); with the middleware at normal
+    priority beside the FIFO loops, that middleware starved instead (110 ms). At normal
+    priority both ran clean (docs/results.md, section 1). With the budget off
+    (``sched_rt_runtime_us = -1``, a tuned real-time machine) FIFO is used on one CPU too.
+    """
+    try:
+        if len(os.sched_getaffinity(os.getpid())) != 1 or not rt_budget_on():
+            return ''
+    except (OSError, AttributeError):
+        return ''
+    return ('this process may run on one CPU only and the kernel limits real-time threads to '
+            'sched_rt_runtime_us of each second: SCHED_FIFO is not used (normal priority), '
+            'so that the other processes on that CPU (the sim, the middleware) are not '
+            'starved; give the process more CPUs, or set kernel.sched_rt_runtime_us=-1 on a '
+            'tuned real-time machine')
+
+
 def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
     """
     Give the calling thread SCHED_FIFO at ``priority`` (0: leave it) and pin it to ``cpus``.
@@ -79,7 +114,10 @@ def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
     Returns the warnings (empty when everything was granted); never raises.
     """
     warnings = []
-    if priority > 0:
+    shared = one_cpu_reason() if priority > 0 else ''
+    if shared:
+        warnings.append(shared)
+    elif priority > 0:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
         except (OSError, AttributeError) as exc:
@@ -113,7 +151,10 @@ def schedule_process(priority: int, what: str, keep: tuple[int, ...] = (),
     if priority <= 0:
         return []
     me = threading.get_native_id()
-    warnings = set_thread_scheduling(priority, cpus)
+    shared = one_cpu_reason()  # then no thread gets FIFO; cpus still apply
+    warnings = set_thread_scheduling(0 if shared else priority, cpus)
+    if shared:
+        return [shared]
     level = max(1, priority - 1 if others is None else others)
     tids = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
     for tid in tids:
@@ -138,6 +179,8 @@ class ControlLoop:
         self.events: deque = deque(maxlen=256)  # ('mode'|'error'|'warning', ...), for the node
         self.errors = dict.fromkeys(CALLBACK_KINDS, 0)
         self.holds = HoldStats(CALLBACK_KINDS)
+        # perf_counter at the end of a joint-state callback's inputs and of its tick
+        self._marks = [0.0, 0.0]
         self._k_tick = 0
         self.delay, self.commands = DelayStats(4096), RateMeter()
         self.timing = LoopStats(4096)  # tick periods and compute times
@@ -214,11 +257,11 @@ class ControlLoop:
 
     def _timed(self, kind: str, callback: Callable) -> Callable:
         """Guard a callback (errors become events) and record how long it held the thread."""
-        record, events, clock = self.holds.record, self.events, time.perf_counter
-        errors = self.errors
+        holds, events, clock = self.holds, self.events, time.perf_counter
+        errors, marks = self.errors, self._marks
 
         def run(*args: Any) -> None:
-            t0 = clock()
+            t0 = marks[0] = marks[1] = clock()
             try:
                 callback(*args)
             except InputError as exc:
@@ -227,7 +270,10 @@ class ControlLoop:
             except Exception as exc:  # noqa: BLE001 - an escaping exception ends the thread
                 errors[kind] += 1
                 events.append(('error', f'{kind} failed: {exc!r}'))
-            record(kind, clock() - t0)
+            t1 = clock()
+            holds.record(kind, t1 - t0)
+            if t1 - t0 > holds.longest[0]:  # where it went: HoldStats.where
+                holds.longest = (t1 - t0, kind, hold_phases(kind, t0, marks, t1))
         return run
 
     def _now(self) -> float:
@@ -248,6 +294,7 @@ class ControlLoop:
         t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()  # unstamped: reception time
         self._apply_handovers()
         self.runtime.on_joint_state(msg.names, msg.position, msg.velocity, t)
+        self._marks[0] = self._marks[1] = time.perf_counter()
         new, self._t_state = t > self._t_state, t
         if new and self.active and self.settings.tick_mode != 'timer':
             self._tick(t)
@@ -286,6 +333,7 @@ class ControlLoop:
         now_ns = max(self._now_ns(), round(t_input * 1e9))
         self._t_tick = now_ns * 1e-9
         out = self.runtime.tick(self._t_tick)
+        self._marks[1] = time.perf_counter()
         if out.tau is not None:
             self.effort.publish(out.tau)
             self.delay.record(self._t_tick + (time.perf_counter() - t_start) - self._t_state)

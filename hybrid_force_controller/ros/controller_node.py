@@ -349,6 +349,7 @@ class ControllerNode(LifecycleNode):
             holds = loop.holds.summary()
             extra['loop_hold_max_ms'] = holds.pop('all_max_ms')
             extra['loop_hold_p999_ms'] = holds.pop('all_p999_ms')
+            extra['loop_hold_max_where'] = loop.holds.where()
             extra.update({f'hold_{k}': v for k, v in holds.items() if not k.startswith('all')})
         if self.runtime is not None:
             counts = {k: self.runtime.counters[k] for k in EVENT_COUNTERS}

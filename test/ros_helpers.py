@@ -42,7 +42,8 @@ _DOMAIN_OFFSETS = {
     'any_arm': 4, 'colcon_build': 5, 'demo': 6, 'recorder': 7, 'realtime': 8,
     'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
-    'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'mujoco_ros': 30,
+    'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'sim_watchdog': 21,
+    'mujoco_ros': 30,
 }
 
 
@@ -165,8 +166,19 @@ class Spun:
         rclpy.init(args=args, context=self.context, domain_id=domain)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes: list[Any] = []
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _spin(self) -> None:
+        from rclpy._rclpy_pybind11 import RCLError
+        from rclpy.executors import ExternalShutdownException
+        try:
+            self.executor.spin()
+        except (ExternalShutdownException, RCLError):
+            # close() shut the context down: spin() woke up and ends here (or, shut down while
+            # building its next wait set, failed to build it)
+            if self.context.ok():
+                raise
 
     def add(self, node: Any) -> Any:
         """Spin ``node`` (created with ``context=self.context``); returns it."""
@@ -180,12 +192,19 @@ class Spun:
         return self.add(rclpy.create_node(name, context=self.context))
 
     def close(self) -> None:
+        """
+        Stop the spin thread, then destroy.
+
+        The context goes first: it wakes spin(), which ends before anything is destroyed
+        (``executor.shutdown()`` first destroyed its guard condition while the spin thread could
+        still be adding it to a wait set: an InvalidHandle in that thread).
+        """
         import rclpy
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(WALL_TIMEOUT)
         self.executor.shutdown(timeout_sec=WALL_TIMEOUT)
         for node in self.nodes:
             node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(WALL_TIMEOUT)
 
     def __enter__(self) -> 'Spun':
         return self

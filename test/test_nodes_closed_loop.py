@@ -6,6 +6,8 @@ listens to ``/sim/contact_wrench`` (true contact force), ``/hybrid_force_control
 ``/hybrid_force_controller/x_desired`` and ``/clock`` and changes ``f_d`` through the
 parameter service. Lockstep makes the result independent of the machine's load.
 """
+import threading
+
 from geometry_msgs.msg import PointStamped, WrenchStamped
 import numpy as np
 import pytest
@@ -28,6 +30,7 @@ class _Listener(Node):
     def __init__(self, context):
         super().__init__('closed_loop_listener', context=context)
         self.clock = 0.0
+        self.lock = threading.Lock()  # the executor thread adds samples while the test reads
         self.force, self.x, self.x_d = {}, {}, {}
         qos = QoSProfile(depth=1000)
         self.create_subscription(Clock, '/clock', self._on_clock, qos)
@@ -42,21 +45,24 @@ class _Listener(Node):
 
     def _on_force(self, msg):
         f = msg.wrench.force
-        self.force[stamp_s(msg.header.stamp)] = np.array([f.x, f.y, f.z])
+        with self.lock:
+            self.force[stamp_s(msg.header.stamp)] = np.array([f.x, f.y, f.z])
 
-    @staticmethod
-    def _point(store, msg):
-        store[stamp_s(msg.header.stamp)] = np.array([msg.point.x, msg.point.y, msg.point.z])
+    def _point(self, store, msg):
+        with self.lock:
+            store[stamp_s(msg.header.stamp)] = np.array([msg.point.x, msg.point.y, msg.point.z])
 
     def force_error_rms(self, t0, t1, f_d):
-        e = [N_W @ f - f_d for t, f in list(self.force.items()) if t0 <= t <= t1]
+        with self.lock:
+            force = list(self.force.items())
+        e = [N_W @ f - f_d for t, f in force if t0 <= t <= t1]
         assert len(e) > 0.5 * (t1 - t0) * 1000, f'only {len(e)} force samples in [{t0}, {t1}]'
         return float(np.sqrt(np.mean(np.square(e))))
 
     def tangential_error_rms(self, t0, t1):
-        x_d = dict(list(self.x_d.items()))  # snapshots: the executor thread adds samples
-        e = [P_TANGENT @ (x - x_d[t]) for t, x in list(self.x.items())
-             if t0 <= t <= t1 and t in x_d]
+        with self.lock:
+            x_d, x = dict(self.x_d), list(self.x.items())
+        e = [P_TANGENT @ (x_t - x_d[t]) for t, x_t in x if t0 <= t <= t1 and t in x_d]
         assert len(e) > 0.5 * (t1 - t0) * 1000, f'only {len(e)} position pairs in [{t0}, {t1}]'
         return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
 

@@ -11,13 +11,10 @@ import threading
 from hybrid_force_controller.ros.controller_node import ControllerNode
 import numpy as np
 import pytest
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
-from ros_helpers import domain_id
+from ros_helpers import domain_id, Spun
 from sim_node.sim_node import SimNode
 
 
@@ -34,31 +31,18 @@ def _wait(future):
     return future.result()
 
 
-class _Running:
-    """Nodes spun by a background executor in their own context."""
-
-    def __init__(self, make_nodes, args=None):
-        self.context = Context()
-        rclpy.init(args=args, context=self.context, domain_id=DOMAIN_ID)
-        self.nodes = make_nodes(self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        for node in self.nodes:
-            self.executor.add_node(node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
-
-    def close(self):
-        self.executor.shutdown(timeout_sec=TIMEOUT)
-        for node in self.nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(TIMEOUT)
+def _running(make_nodes, args=None) -> Spun:
+    """Nodes made by ``make_nodes(context)``, spun by a background executor (ros_helpers.Spun)."""
+    spun = Spun(DOMAIN_ID, args)
+    for node in make_nodes(spun.context):
+        spun.add(node)
+    return spun
 
 
 @pytest.fixture(scope='module')
 def controller():
     bundled = [Parameter('use_bundled_model', value=True)]
-    running = _Running(lambda ctx: [ControllerNode(context=ctx, parameter_overrides=bundled),
+    running = _running(lambda ctx: [ControllerNode(context=ctx, parameter_overrides=bundled),
                                     Node('param_tester', context=ctx)])
     node, tester = running.nodes
     client = AsyncParameterClient(tester, 'hybrid_force_controller')
@@ -149,7 +133,7 @@ def test_atomic_multi_set_is_validated_as_a_whole(controller):
 
 def test_params_file_configures_both_nodes():
     args = ['--ros-args', '--params-file', str(PARAMS_FILE), '-p', 'f_d:=3']
-    running = _Running(lambda ctx: [ControllerNode(context=ctx), SimNode(context=ctx)], args)
+    running = _running(lambda ctx: [ControllerNode(context=ctx), SimNode(context=ctx)], args)
     try:
         controller, sim = running.nodes
         p = controller.params.law
@@ -174,7 +158,7 @@ def test_bool_array_is_refused_with_a_reason(controller):
 
 
 def test_bool_array_at_start_up_is_refused():
-    running = _Running(lambda ctx: [], ['--ros-args', '-p', 'n:=[true, false, false]'])
+    running = _running(lambda ctx: [], ['--ros-args', '-p', 'n:=[true, false, false]'])
     try:
         with pytest.raises(ValueError, match='n must be an array of numbers, got booleans'):
             ControllerNode(context=running.context, parameter_overrides=[
@@ -189,7 +173,7 @@ def test_empty_arrays_at_start_up_mean_default(tmp_path):
     params.write_text('hybrid_force_controller:\n  ros__parameters:\n'
                       '    use_bundled_model: true\n    theta_min: []\n    theta_hat0: []\n')
     args = ['--ros-args', '--params-file', str(params), '-p', 'effort_limits:=[]']
-    running = _Running(lambda ctx: [ControllerNode(context=ctx)], args)
+    running = _running(lambda ctx: [ControllerNode(context=ctx)], args)
     try:
         (node,) = running.nodes
         np.testing.assert_array_equal(node.params.runtime.effort_limits, [100.0, 100.0])
@@ -213,7 +197,7 @@ def test_dump_and_reload(controller, tmp_path):
     assert dumped['effort_limits'] == [] and dumped['theta_min'] == []
     path = tmp_path / 'dump.yaml'
     path.write_text(yaml.safe_dump({'/hybrid_force_controller': {'ros__parameters': dumped}}))
-    running = _Running(lambda ctx: [ControllerNode(context=ctx)],
+    running = _running(lambda ctx: [ControllerNode(context=ctx)],
                        ['--ros-args', '--params-file', str(path)])
     try:
         (reloaded,) = running.nodes

@@ -15,7 +15,8 @@ its ``command_timeout`` at 0.1 s, as a torque-controlled arm's watchdog):
 * the control thread runs at SCHED_FIFO 50 (granted here, as root), the middleware's threads
   at 49 (they deliver its input) and the node's own thread at 48, none at the ordinary policy
   (the loop waits on them: the GIL, the DDS delivery); where the OS refuses it (``setpriv``
-  drops CAP_SYS_NICE) the node warns once, with what to do, and runs on.
+  drops CAP_SYS_NICE) the node warns once, with what to do, and runs on. Confined to one CPU
+  (``taskset -c 0``), the nodes use no FIFO at all and say so once (test_scheduling.py).
 
 Thresholds are loose on purpose (a loaded 2-core machine): the exact figures are what
 ``bench --ros --param-storm 20`` reports. Checks cover the whole run, not a window.
@@ -28,6 +29,7 @@ import time
 
 from hybrid_force_controller.core.contact import in_contact
 from hybrid_force_controller.ros.bench import storm_values
+from hybrid_force_controller.ros.control_loop import one_cpu_reason
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -36,6 +38,7 @@ from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
 
 STORM_HZ, STORM_S = 20.0, 5.0
 HOLD_LIMIT_MS = 20.0  # 20 periods: loose enough never to flake
+ONE_CPU = bool(one_cpu_reason())  # the nodes inherit this process's CPUs (control_loop.py)
 
 
 def _policies(pid: int) -> dict[int, tuple[int, int]]:
@@ -86,7 +89,11 @@ def test_every_set_of_the_storm_succeeds(storm):
 
 def test_the_storm_never_starves_the_plant_watchdog(storm):
     sim0, sim1 = storm['sim0'], storm['sim1']
-    assert sim1['commands'] > sim0['commands'] + 5000  # the loop ran across the storm
+    periods = sim1['steps'] - sim0['steps']
+    assert periods > 1000 * STORM_S  # the run spans the storm
+    # the loop ran across it: at least one command per 4 periods (two cores: about 1; one
+    # core, taskset -c 0: 0.40 to 0.82 in 12 runs, so 1 per 2 flaked there)
+    assert sim1['commands'] - sim0['commands'] > 0.25 * periods, (sim0, sim1)
     assert sim1['command_timeouts'] == sim0['command_timeouts'] == 0, storm['rig'].sim.tail()
 
 
@@ -114,12 +121,18 @@ def test_a_margin_evaluation_during_the_run_reaches_diagnostics(storm):
 def test_the_control_thread_hold_stays_short_over_the_whole_run(storm):
     ctrl = storm['ctrl1']
     assert ctrl['hold_joint_states_count'] > 5000  # every callback since activation counted
-    assert ctrl['loop_hold_max_ms'] < HOLD_LIMIT_MS, ctrl
+    assert ctrl['loop_hold_max_ms'] < HOLD_LIMIT_MS, (ctrl['loop_hold_max_where'], ctrl)
+    assert ctrl['loop_hold_max_where'].startswith(  # where the longest went, on /diagnostics
+        ('joint_states', 'wrench', 'timer')), ctrl
 
 
 def test_the_control_thread_runs_at_sched_fifo_above_every_other_thread(storm):
     pid = storm['rig'].ctrl.pid
     policies = _policies(pid)
+    if ONE_CPU:  # taskset -c 0 (the machine halved): no FIFO at all, and one warning
+        assert all(p[0] == os.SCHED_OTHER for p in policies.values()), policies
+        assert storm['rig'].ctrl.log_since().count('may run on one CPU only') == 1
+        return
     assert (os.SCHED_FIFO, 50) in policies.values(), policies  # the control thread
     assert policies[pid] == (os.SCHED_FIFO, 48), policies  # the node's: parameters, diagnostics
     others = [p for tid, p in policies.items() if tid != pid and p != (os.SCHED_FIFO, 50)]
@@ -138,8 +151,11 @@ def test_a_refused_priority_warns_once_and_the_loop_runs_on(tmp_path):
         wait_for(lambda: rig.log.diag('sim').get('commands', 0) > sim0 + 1000,
                  '1000 more commands at the plant', alive=rig.procs)
         log = rig.ctrl.log_since()
-        assert log.count('could not set SCHED_FIFO') == 1, log
-        assert 'limits.conf' in log and 'thread_priority:=0' in log
+        if ONE_CPU:  # FIFO is not even asked for (test_scheduling.py): that warning instead
+            assert log.count('may run on one CPU only') == 1, log
+        else:
+            assert log.count('could not set SCHED_FIFO') == 1, log
+            assert 'limits.conf' in log and 'thread_priority:=0' in log
         assert all(policy == os.SCHED_OTHER for policy, _ in _policies(rig.ctrl.pid).values())
     finally:
         rig.close()

@@ -11,6 +11,7 @@ its children, or CPU time spent in its main), never after a bare sleep. ``report
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 import re
 import signal
@@ -77,15 +78,26 @@ def _children(pid: int) -> list[int]:
 
 
 def _sigint_and_check(proc: NodeProcess, kids: list[int] = ()) -> None:
-    proc.signal(signal.SIGINT)
-    wait_for(lambda: not proc.alive, 'the process to exit after SIGINT', timeout=30.0)
-    log = proc.log_since()
-    assert proc.returncode == 0, log[-3000:]
-    assert 'Traceback' not in log and 'RCLError' not in log, log[-3000:]
-    for kid in kids:
-        wait_for(lambda: not Path(f'/proc/{kid}').exists()
-                 or 'Z' in Path(f'/proc/{kid}/stat').read_text().rsplit(')', 1)[1][:3],
-                 f'child {kid} to exit', timeout=30.0)
+    """Ctrl-C ends ``proc`` and its ``kids`` cleanly; the kids are killed on every path."""
+    try:
+        proc.signal(signal.SIGINT)
+        wait_for(lambda: not proc.alive, 'the process to exit after SIGINT', timeout=30.0)
+        log = proc.log_since()
+        assert proc.returncode == 0, log[-3000:]
+        assert 'Traceback' not in log and 'RCLError' not in log, log[-3000:]
+        for kid in kids:
+            wait_for(lambda: not _running(kid), f'child {kid} to exit', timeout=30.0)
+    finally:
+        for kid in kids:
+            if _running(kid):  # a failed check leaves no sim or controller running
+                os.kill(kid, signal.SIGKILL)
+
+
+def _running(pid: int) -> bool:
+    try:
+        return 'Z' not in Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1][:3]
+    except OSError:
+        return False
 
 
 @pytest.mark.parametrize('exe, args', [

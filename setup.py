@@ -37,12 +37,12 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'controller = hybrid_force_controller.ros.controller_node:main',
+            'controller = hybrid_force_controller.ros.controller.controller_node:main',
             'sim = sim_node.sim_node:main',
-            'paper = hybrid_force_controller.ros.cli:paper',
-            'bench = hybrid_force_controller.ros.bench:main',
-            'demo = hybrid_force_controller.ros.demo:main',
-            'report = hybrid_force_controller.ros.cli:report',
+            'paper = hybrid_force_controller.ros.programs.cli:paper',
+            'bench = hybrid_force_controller.ros.programs.bench:main',
+            'demo = hybrid_force_controller.ros.programs.demo:main',
+            'report = hybrid_force_controller.ros.programs.cli:report',
         ],
     },
 )

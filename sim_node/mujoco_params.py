@@ -2,7 +2,7 @@
 The sim's physics choice and the MuJoCo scene's parameters (schema and validation only).
 
 ``physics`` selects the plant: ``paper`` (default: the paper's model, pinocchio ABA against a
-frictionless spring, core/simulator.py) or ``mujoco`` (MuJoCo compiled from the same URDF:
+frictionless spring, core/offline/simulator.py) or ``mujoco`` (MuJoCo compiled from the same URDF:
 mujoco_scene.py, mujoco_plant.py). This module does not import ``mujoco``, so the default
 sim declares these parameters without loading it. :func:`mujoco_options` validates the
 values once at start-up and raises :class:`ParameterValidationError` naming the bad one.
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import math
 from typing import Any, Mapping
 
-from hybrid_force_controller.core.params import ParameterValidationError, ParamSpec as _S
+from hybrid_force_controller.core.config.params import ParameterValidationError, ParamSpec as _S
 
 __all__ = ['MUJOCO_SCHEMA', 'MujocoOptions', 'PHYSICS', 'check_physics', 'mujoco_options']
 

@@ -2,8 +2,8 @@
 The MuJoCo plant of ``physics:=mujoco``: the interface of the paper's ``ArmSimulator``.
 
 :class:`MujocoPlant` has ``t``, ``step(tau, dt)``, ``hold(dt)``, ``measure()`` and a settable
-``surface``, so the ``sim`` node and the offline engine (core/engine.py) drive it as they drive
-the pinocchio plant. The caller passes ``dt`` and the efforts; nothing here reads a clock.
+``surface``, so the ``sim`` node and the offline engine (core/offline/engine.py) drive it as they
+drive the pinocchio plant. The caller passes ``dt`` and the efforts; nothing here reads a clock.
 Efforts are applied as ``qfrc_applied`` (held over the period, ``substeps`` MuJoCo steps of
 ``dt / substeps``); the locked joints are welded (mujoco_scene.py).
 
@@ -22,10 +22,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from hybrid_force_controller.core.contact import in_contact
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.simulator import Measurement, SimulatorError
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.simulator import Measurement, SimulatorError
+from hybrid_force_controller.core.runtime.contact import in_contact
 import mujoco
 import numpy as np
 

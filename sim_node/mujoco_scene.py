@@ -41,9 +41,9 @@ from dataclasses import dataclass
 import math
 from pathlib import Path
 
-from hybrid_force_controller.core.environment import ElasticSurface, SurfaceError
-from hybrid_force_controller.core.params import ParameterValidationError
-from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.config.params import ParameterValidationError
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.environment import ElasticSurface, SurfaceError
 import mujoco
 import numpy as np
 

@@ -4,7 +4,7 @@
 Reads the same config files as ``demo`` (config/params.yaml or panda_params.yaml +
 panda_table.yaml, then mujoco.yaml and demo's tool mass for ``physics:=mujoco``), builds the
 controller's runtime and the sim's plant from them as the nodes do (sim_node/plants.py), and
-runs the offline engine (core/engine.py) with the timing measured over DDS
+runs the offline engine (core/offline/engine.py) with the timing measured over DDS
 (``TimingModel.ros_measured``, seeded), so the figures do not depend on the machine's load:
 RMS tangential position and true-force errors over t >= 5 s, the contact lost after the first
 touch, and the plant's cost per 1 ms step (``plant_step_us``: step + measure, wall time of this
@@ -19,15 +19,16 @@ import sys
 import time
 from typing import Any, Sequence
 
-from hybrid_force_controller.core.arm7 import panda_urdf_path
-from hybrid_force_controller.core.contact import in_contact
-from hybrid_force_controller.core.engine import run_loop
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
-from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime
-from hybrid_force_controller.core.timing import TimingModel
-from hybrid_force_controller.ros.demo import TOOL_MASS
+from hybrid_force_controller.core.config.params import (build_params, CONTROLLER_SCHEMA,
+                                                        MODEL_SCHEMA)
+from hybrid_force_controller.core.model.robot_model import default_urdf_path, RobotModel
+from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
+from hybrid_force_controller.core.offline.engine import run_loop
+from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.timing import TimingModel
+from hybrid_force_controller.core.runtime.contact import in_contact
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
+from hybrid_force_controller.ros.programs.demo import TOOL_MASS
 import numpy as np
 
 from .plants import make_plant, touch_offset

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.simulator import ArmSimulator
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.simulator import ArmSimulator
 import numpy as np
 
 from .mujoco_params import check_physics, mujoco_options

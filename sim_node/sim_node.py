@@ -27,8 +27,8 @@ first tick. The surface (``stiffness``, ``surface_point``, ``surface_normal``,
 between two steps.
 
 Physics (``physics``, read at start-up): ``paper`` (default) integrates the paper's model
-(pinocchio ABA, frictionless spring: core/simulator.py); ``mujoco`` steps MuJoCo compiled from
-the same URDF with a sphere tool, a plane with damping and friction and a wrist force/torque
+(pinocchio ABA, frictionless spring: core/offline/simulator.py); ``mujoco`` steps MuJoCo compiled
+from the same URDF with a sphere tool, a plane with damping and friction and a wrist force/torque
 sensor (its reading, with the tool's weight, is the published wrench, torque included;
 mujoco_plant.py). Both run on the same timers, watchdog and catch-up.
 """
@@ -41,23 +41,20 @@ from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
-from hybrid_force_controller.core.environment import (ElasticSurface, sensor_wrench_from_f_W,
-                                                      SurfaceError)
-from hybrid_force_controller.core.params import (MODEL_SCHEMA, ParameterValidationError,
-                                                 ParamSpec as _S)
-from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.simulator import Measurement
-from hybrid_force_controller.ros.cdr import RawMessage, read_float64_array
-from hybrid_force_controller.ros.control_loop import schedule_process
-from hybrid_force_controller.ros.loop_timing import GapMeter, RateMeter
-from hybrid_force_controller.ros.model_source import expand_description
-from hybrid_force_controller.ros.node_params import (check_choice, check_cpus,
-                                                     CPU_AFFINITY_SPEC, EXECUTOR_SPEC,
-                                                     THREAD_PRIORITY_SPEC)
-from hybrid_force_controller.ros.parameters import declare_schema, ParameterBinder
-from hybrid_force_controller.ros.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS, DESCRIPTION_QOS,
-                                             STATE_OUT_QOS)
-from hybrid_force_controller.ros.runner import EXECUTORS, print_help, run_node, wants_help
+from hybrid_force_controller.core.config.params import MODEL_SCHEMA, ParameterValidationError
+from hybrid_force_controller.core.model.robot_model import default_urdf_path, RobotModel
+from hybrid_force_controller.core.offline.environment import (ElasticSurface,
+                                                              sensor_wrench_from_f_W, SurfaceError)
+from hybrid_force_controller.core.offline.simulator import Measurement
+from hybrid_force_controller.ros.common.cdr import RawMessage, read_float64_array
+from hybrid_force_controller.ros.common.loop_timing import GapMeter, RateMeter
+from hybrid_force_controller.ros.common.model_source import expand_description
+from hybrid_force_controller.ros.common.node_params import check_choice, check_cpus
+from hybrid_force_controller.ros.common.parameters import declare_schema, ParameterBinder
+from hybrid_force_controller.ros.common.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS,
+                                                    DESCRIPTION_QOS, STATE_OUT_QOS)
+from hybrid_force_controller.ros.common.runner import EXECUTORS, print_help, run_node, wants_help
+from hybrid_force_controller.ros.common.scheduling import schedule_process
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -66,38 +63,12 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, String
 
-from .mujoco_params import MUJOCO_SCHEMA
 from .plants import make_plant, touch_offset
+from .sim_params import HELP_PARAMETERS, SIM_SCHEMA, SURFACE
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'held_periods', 'main']
 
 WATCHDOG_S = 0.2
-SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
-           'sensor_frozen')
-SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
-    ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
-    ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
-    ('stiffness', 'double', 1700.0, 'Surface stiffness k, N/m.', 1e-6, 1e9, {}),
-    ('surface_point', 'double_array', [],
-     'Point of the undeformed surface, base frame, m ([] = tool start: touching, 0 N).', {}),
-    ('surface_normal', 'double_array', [0.0, -1.0, 0.0], 'Surface normal (into it), base.', {}),
-    ('surface_enabled', 'bool', True, 'false: no surface (free motion, e.g. contact loss).', {}),
-    ('sensor_frozen', 'bool', False, 'true: the F/T sensor repeats its last reading (a frozen '
-     'sensor, for fault injection).', {}),
-    ('masses', 'double_array', [], 'True link masses, kg ([] = URDF).', {}),
-    ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
-    ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
-    ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
-    ('substeps', 'integer', 2, 'Integration sub-steps per step (the offline scenarios use 2).',
-     1, 1000, {}),
-    ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
-     '(sim time in lockstep).', 1e-6, 60.0, {}),
-    ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
-    ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
-     'integrates (older time is dropped and counted).', 1, 100000, {}),
-    ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
-     0.0, 1e5, {}),
-)) + MUJOCO_SCHEMA + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
 
 
 def held_periods(t_begin: float, periods: int, dt: float, t_cmd: float, timeout: float) -> int:
@@ -163,7 +134,7 @@ class SimNode(Node):
         Give the calling thread, the one that spins this node, its real-time scheduling.
 
         SCHED_FIFO ``thread_priority`` (and ``cpu_affinity``) for it, one below for the
-        middleware's threads (``control_loop.schedule_process``). ``main`` calls it; a node
+        middleware's threads (``ros/common/scheduling.py``). ``main`` calls it; a node
         built in another program leaves that program's threads alone.
         """
         priority, cpus = self._scheduling
@@ -174,7 +145,7 @@ class SimNode(Node):
         """
         Messages built once and refilled in place by every publish.
 
-        The 1 kHz joint state and wrench are kept serialized (ros/cdr.py ``RawMessage``) and
+        The 1 kHz joint state and wrench are kept serialized (ros/common/cdr.py ``RawMessage``) and
         published as bytes: rclpy's conversion of every field cost more than the physics.
         """
         zeros = [0.0] * len(self.joints)
@@ -379,20 +350,6 @@ class SimNode(Node):
             message='running', hardware_id=self.get_name(),
             values=[KeyValue(key=k, value=str(x)) for k, x in values.items()])
         self.pub_diag.publish(DiagnosticArray(header=Header(stamp=stamp), status=[status]))
-
-
-HELP_PARAMETERS = (
-    ('lockstep', 'true: own /clock and step once per command (deterministic)'),
-    ('physics', "'paper' (default) or 'mujoco' (tool_*, surface_damping/friction, joint_*)"),
-    ('rate_hz', 'plant step rate (default 1000)'),
-    ('masses', "true link masses, kg ([] = the URDF's)"),
-    ('stiffness, surface_*', 'the elastic surface (settable at run time)'),
-    ('sensor_frozen', 'true: the F/T sensor repeats its last reading (settable)'),
-    ('noise_sigma, seed', 'force sensor noise'),
-    ('command_timeout', 'zero effort after this long without a command'),
-    ('max_catch_up', 'most periods a late timer callback integrates'),
-    ('robot_description', "URDF XML, .urdf or .xacro path ('': the paper's 2-link arm)"),
-)
 
 
 def main(args: list[str] | None = None) -> int:

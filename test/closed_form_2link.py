@@ -1,7 +1,7 @@
 """
 Closed-form model of the 2-link planar arm of section V of [1], eqs. (30)-(37).
 
-Pure numpy test oracle for ``hybrid_force_controller.core.robot_model``. Reference [1] is
+Pure numpy test oracle for ``hybrid_force_controller.core.model.robot_model``. Reference [1] is
 Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
 

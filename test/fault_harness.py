@@ -175,7 +175,7 @@ class Rig:
                  '-r', f'/clock:={RAW}/clock']
         self.sim = NodeProcess('sim_node.sim_node', logs / 'sim.log', domain_id,
                                ['-p', 'lockstep:=true', *sim_args, *remap])
-        self.controller = NodeProcess('hybrid_force_controller.ros.controller_node',
+        self.controller = NodeProcess('hybrid_force_controller.ros.controller.controller_node',
                                       logs / 'controller.log', domain_id,
                                       ['-p', 'use_sim_time:=true', *controller_args,
                                        # every injected message is counted: reliable inputs

@@ -347,7 +347,7 @@ class ForceLog:
         return (np.array([t for t, _ in pairs]), np.array([f for _, f in pairs]))
 
 
-CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller_node'
+CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller.controller_node'
 SIM_MODULE = 'sim_node.sim_node'
 MASSES_OFF = ('-p', 'masses:=[0.65, 1.35]')
 
@@ -375,7 +375,7 @@ class RealTimeRig:
         self.t_touch = 0.0
 
     def start(self) -> 'RealTimeRig':
-        from hybrid_force_controller.core.contact import in_contact
+        from hybrid_force_controller.core.runtime.contact import in_contact
         for p in self.procs:
             p.start()
         wait_for(lambda: self.log.latest_t() > 0.0 and in_contact(self.log.forces()[1][-1]),

@@ -6,13 +6,14 @@ test starts the controller node for the Panda as a subprocess in its own ROS dom
 """
 from pathlib import Path
 
-from hybrid_force_controller.core import scenario as scenario_module
-from hybrid_force_controller.core.arm7 import (PANDA_JOINTS, panda_model, PANDA_Q0, panda_scenario,
-                                               panda_urdf_path)
-from hybrid_force_controller.core.parameter_sets import project_physical
-from hybrid_force_controller.core.robot_model import default_urdf_path, ModelError, RobotModel
-from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
-from hybrid_force_controller.core.simulator import ArmSimulator
+from hybrid_force_controller.core.model.parameter_sets import project_physical
+from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
+                                                            RobotModel)
+from hybrid_force_controller.core.offline import scenario as scenario_module
+from hybrid_force_controller.core.offline.arm7 import (PANDA_JOINTS, panda_model, PANDA_Q0,
+                                                       panda_scenario, panda_urdf_path)
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from hybrid_force_controller.core.offline.simulator import ArmSimulator
 from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pinocchio as pin
@@ -310,7 +311,8 @@ def panda_node(tmp_path):
             '-p', 'end_effector_link:=panda_hand_tcp',
             '-p', f'joints:=[{",".join(PANDA_JOINTS)}]',
             '-p', 'gravity:=[0.0,0.0,-9.81]', '-p', 'n:=[0.0,0.0,-1.0]']
-    proc = NodeProcess('hybrid_force_controller.ros.controller_node', tmp_path / 'controller.log',
+    proc = NodeProcess('hybrid_force_controller.ros.controller.controller_node',
+                       tmp_path / 'controller.log',
                        DOMAIN_ID, args, params_file=None)
     spun = Spun(DOMAIN_ID)
     try:

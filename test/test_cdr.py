@@ -2,8 +2,8 @@
 import math
 
 from geometry_msgs.msg import WrenchStamped
-from hybrid_force_controller.ros.cdr import (CdrError, read_float64_array, read_joint_state,
-                                             read_wrench_stamped)
+from hybrid_force_controller.ros.common.cdr import (CdrError, read_float64_array, read_joint_state,
+                                                    read_wrench_stamped)
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message

@@ -10,7 +10,8 @@ error is 10 times f_d and acts along n): <= 0.15 s over the whole run. No ROS.
 """
 from __future__ import annotations
 
-from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig, ScenarioResult
+from hybrid_force_controller.core.offline.scenario import (run_scenario, ScenarioConfig,
+                                                           ScenarioResult)
 from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pytest

@@ -8,16 +8,16 @@ from __future__ import annotations
 
 import math
 
-from hybrid_force_controller.core.control_law import (adapt_theta, ControlError,
-                                                      HybridForceController, small_inverse)
-from hybrid_force_controller.core.effort import EffortLimiter
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.params import (build_params, check_stability,
-                                                 ParameterValidationError)
-from hybrid_force_controller.core.reference import blend_start, Reference, SineReference
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import PAPER_Q0
-from hybrid_force_controller.core.simulator import ArmSimulator
+from hybrid_force_controller.core.config.params import (build_params, check_stability,
+                                                        ParameterValidationError)
+from hybrid_force_controller.core.law.control_law import (adapt_theta, ControlError,
+                                                          HybridForceController, small_inverse)
+from hybrid_force_controller.core.law.reference import blend_start, Reference, SineReference
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0
+from hybrid_force_controller.core.offline.simulator import ArmSimulator
+from hybrid_force_controller.core.runtime.effort import EffortLimiter
 import numpy as np
 import pinocchio as pin
 import pytest

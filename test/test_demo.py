@@ -30,7 +30,7 @@ def demo_run(tmp_path_factory, request) -> Path:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=DEMO_DOMAIN_ID,
                PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
-    proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.ros.demo',
+    proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.ros.programs.demo',
                            '--duration', str(DURATION_S), '--out', str(out), *mode],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]

@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import functools
 
-from hybrid_force_controller.core.engine import LoopEngine
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.params import build_params
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime, Mode
-from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
-from hybrid_force_controller.core.simulator import ArmSimulator
-from hybrid_force_controller.core.timing import Schedule, Stall, TimingError, TimingModel
+from hybrid_force_controller.core.config.params import build_params
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.engine import LoopEngine
+from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from hybrid_force_controller.core.offline.simulator import ArmSimulator
+from hybrid_force_controller.core.offline.timing import Schedule, Stall, TimingError, TimingModel
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, Mode
 import numpy as np
 import pytest
 

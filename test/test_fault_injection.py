@@ -20,8 +20,8 @@ import signal
 
 from fault_harness import Rig, set_stamp, stamp_s  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from hybrid_force_controller.core.environment import sensor_wrench_from_f_W  # noqa: E402
-from hybrid_force_controller.core.robot_model import RobotModel  # noqa: E402
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from ros_helpers import domain_id  # noqa: E402

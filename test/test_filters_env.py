@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import math
 
-from hybrid_force_controller.core.environment import (ElasticSurface, f_W_from_sensor_wrench,
-                                                      sensor_wrench_from_f_W, SurfaceError)
-from hybrid_force_controller.core.filters import LowPassFilter
-from hybrid_force_controller.core.reference import (blend_start, BlendedReference, Reference,
-                                                    SineReference)
+from hybrid_force_controller.core.law.reference import (blend_start, BlendedReference, Reference,
+                                                        SineReference)
+from hybrid_force_controller.core.offline.environment import (ElasticSurface,
+                                                              f_W_from_sensor_wrench,
+                                                              sensor_wrench_from_f_W, SurfaceError)
+from hybrid_force_controller.core.runtime.filters import LowPassFilter
 import numpy as np
 import pytest
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import threading
 
-from hybrid_force_controller.ros.cdr import read_float64_array
+from hybrid_force_controller.ros.common.cdr import read_float64_array
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 import numpy as np
@@ -26,7 +26,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
+CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 NAME = 'hybrid_force_controller'
 
 

@@ -1,9 +1,9 @@
-"""HoldStats (core/loop_stats.py): the holds of a whole run, and where the longest went."""
+"""HoldStats (core/runtime/loop_stats.py): the holds of a whole run, and where the longest went."""
 from __future__ import annotations
 
 import math
 
-from hybrid_force_controller.core.loop_stats import hold_phases, HoldStats
+from hybrid_force_controller.core.runtime.loop_stats import hold_phases, HoldStats
 import pytest
 
 

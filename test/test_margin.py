@@ -11,11 +11,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from hybrid_force_controller.core.margin import axis_margin, delay_margin
-from hybrid_force_controller.core.params import build_params, ParameterValidationError
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime
-from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.law.margin import axis_margin, delay_margin
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
 import numpy as np
 import pytest
 

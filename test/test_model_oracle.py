@@ -1,5 +1,5 @@
 """
-Oracle tests of ``hybrid_force_controller.core.robot_model`` (pinocchio path).
+Oracle tests of ``hybrid_force_controller.core.model.robot_model`` (pinocchio path).
 
 * The bundled 2-link arm against the paper's closed form, eqs. (30)-(37) of [1] with the
   errata fixed (``test/closed_form_2link.py``), at random non-singular states.
@@ -19,7 +19,8 @@ import importlib.util
 from pathlib import Path
 import sys
 
-from hybrid_force_controller.core.robot_model import default_urdf_path, ModelError, RobotModel
+from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
+                                                            RobotModel)
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -188,7 +189,7 @@ def _regressor_three_calls(model, q, v, w, a):
                                                ('panda', 'link_masses'), ('panda', 'payload')])
 def test_two_call_regressor_equals_three_call_form(arm, parameter_set):
     """(R2) of regressor_affine equals the 3-call polarisation form to 1e-12 at random states."""
-    from hybrid_force_controller.core.arm7 import panda_model
+    from hybrid_force_controller.core.offline.arm7 import panda_model
     model = (RobotModel.from_urdf(parameter_set=parameter_set) if arm == 'two_link'
              else panda_model(parameter_set))
     rng = np.random.default_rng(5)

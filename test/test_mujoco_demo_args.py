@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from hybrid_force_controller.core.arm7 import panda_urdf_path
-from hybrid_force_controller.ros.demo import _scenario_args, main
+from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
+from hybrid_force_controller.ros.programs.demo import _scenario_args, main
 import pytest
 
 

@@ -14,14 +14,14 @@ The MuJoCo plant (``physics:=mujoco``) offline: fidelity, contact, sensor, frict
 """
 from __future__ import annotations
 
-from hybrid_force_controller.core.arm7 import panda_model, PANDA_Q0, panda_urdf_path
-from hybrid_force_controller.core.engine import run_loop
-from hybrid_force_controller.core.environment import (ElasticSurface, sensor_wrench_from_f_W,
-                                                      SurfaceError)
-from hybrid_force_controller.core.params import build_params, ParameterValidationError
-from hybrid_force_controller.core.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime
-from hybrid_force_controller.core.timing import TimingModel
+from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.model.robot_model import default_urdf_path, RobotModel
+from hybrid_force_controller.core.offline.arm7 import panda_model, PANDA_Q0, panda_urdf_path
+from hybrid_force_controller.core.offline.engine import run_loop
+from hybrid_force_controller.core.offline.environment import (ElasticSurface,
+                                                              sensor_wrench_from_f_W, SurfaceError)
+from hybrid_force_controller.core.offline.timing import TimingModel
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
 import mujoco
 import numpy as np
 import pinocchio as pin

@@ -14,9 +14,9 @@ The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
 from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
-from hybrid_force_controller.core.arm7 import panda_urdf_path
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.ros.tracking import TrackingMeter
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
+from hybrid_force_controller.ros.programs.tracking import TrackingMeter
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -25,7 +25,7 @@ from rclpy.qos import QoSProfile
 from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
+CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 CONFIG = ROOT / 'config'
 RUN_S = 7.0  # of stamps after the first 5 s (the metrics window)
 

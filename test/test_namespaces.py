@@ -18,7 +18,7 @@ from rclpy.qos import QoSProfile
 from ros_helpers import domain_id, NodeProcess, Spun, wait_for
 
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
+CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 F_D = {'/arm1': 1.0, '/arm2': 2.0}
 
 

@@ -74,7 +74,8 @@ def loop(tmp_path_factory):
     full = ['-p', 'telemetry_rate_hz:=1000.0']  # every step: the test counts samples
     procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain,
                          ['-p', 'lockstep:=true', *full]),
-             NodeProcess('hybrid_force_controller.ros.controller_node', logs / 'controller.log',
+             NodeProcess('hybrid_force_controller.ros.controller.controller_node',
+                         logs / 'controller.log',
                          domain, ['-p', 'use_sim_time:=true', *full])]
     spun = Spun(domain)
     listener = spun.add(_Listener(spun.context))

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 import threading
 
-from hybrid_force_controller.ros.controller_node import ControllerNode
+from hybrid_force_controller.ros.controller.controller_node import ControllerNode
 import numpy as np
 import pytest
 from rclpy.node import Node

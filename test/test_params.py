@@ -4,11 +4,12 @@ from __future__ import annotations
 import math
 import re
 
-from hybrid_force_controller.core.params import (build_params, CONTROLLER_SCHEMA, ControllerParams,
-                                                 LawGains, ParameterValidationError, RuntimeConfig,
-                                                 schema_defaults)
-from hybrid_force_controller.core.recovery import RecoveryConfig
-from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.config.params import (build_params, CONTROLLER_SCHEMA,
+                                                        ControllerParams, LawGains,
+                                                        ParameterValidationError, RuntimeConfig,
+                                                        schema_defaults)
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.runtime.recovery import RecoveryConfig
 import numpy as np
 import pytest
 

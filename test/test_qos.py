@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
+CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 
 
 class _Robot(Node):

@@ -30,7 +30,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
+CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 N_W = np.array([0.0, -1.0, 0.0])
 P_TANGENT = np.eye(3) - np.outer(N_W, N_W)
 F_D = 1.0
@@ -116,7 +116,7 @@ class _Run:
         self.ctrl = NodeProcess(CTRL, tmp_path / 'controller.log', self.domain)
         self.procs = [self.sim, self.ctrl]
         if recorder:
-            self.procs.append(NodeProcess('hybrid_force_controller.ros.recorder_node',
+            self.procs.append(NodeProcess('hybrid_force_controller.ros.programs.recorder_node',
                                           tmp_path / 'recorder.log', self.domain,
                                           params_file=None, argv=[str(tmp_path / 'bag')]))
         self.spun: Spun | None = None

@@ -27,9 +27,9 @@ import os
 from pathlib import Path
 import time
 
-from hybrid_force_controller.core.contact import in_contact
-from hybrid_force_controller.ros.bench import storm_values
-from hybrid_force_controller.ros.control_loop import one_cpu_reason
+from hybrid_force_controller.core.runtime.contact import in_contact
+from hybrid_force_controller.ros.common.scheduling import one_cpu_reason
+from hybrid_force_controller.ros.programs.bench import storm_values
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter

@@ -19,7 +19,7 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
-from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.model.robot_model import RobotModel
 import numpy as np
 import pytest
 from rclpy.node import Node
@@ -115,7 +115,7 @@ def rig(tmp_path_factory):
     logs, domain = tmp_path_factory.mktemp('realtime_faults'), domain_id('realtime_faults')
     procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain,
                          ['-p', 'masses:=[0.65, 1.35]']),
-             NodeProcess('hybrid_force_controller.ros.controller_node',
+             NodeProcess('hybrid_force_controller.ros.controller.controller_node',
                          logs / 'controller.log', domain)]
     spun = Spun(domain)
     try:

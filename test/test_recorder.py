@@ -5,7 +5,7 @@ import time  # noqa: E402
 from typing import Callable  # noqa: E402
 
 from geometry_msgs.msg import PointStamped, WrenchStamped  # noqa: E402
-from hybrid_force_controller.ros.recorder_node import BagRecorder, message_class  # noqa: E402
+from hybrid_force_controller.ros.programs.recorder_node import BagRecorder, message_class
 from hybrid_force_controller.tools.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,
                                                   TOPIC_WRENCH, TOPIC_X, TYPESTORE)
 import pytest  # noqa: E402

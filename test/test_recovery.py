@@ -8,15 +8,15 @@ input hook). No ROS: the same cases over DDS are in test_realtime_faults.py.
 """
 from __future__ import annotations
 
-from hybrid_force_controller.core.engine import Event, LoopEngine
-from hybrid_force_controller.core.environment import ElasticSurface
-from hybrid_force_controller.core.inputs import ImplausibleWrench, InputError, WrenchGate
-from hybrid_force_controller.core.params import build_params
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime, Mode
-from hybrid_force_controller.core.scenario import PAPER_Q0, run_scenario, ScenarioConfig
-from hybrid_force_controller.core.simulator import ArmSimulator
-from hybrid_force_controller.core.timing import TimingModel
+from hybrid_force_controller.core.config.params import build_params
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.engine import Event, LoopEngine
+from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from hybrid_force_controller.core.offline.simulator import ArmSimulator
+from hybrid_force_controller.core.offline.timing import TimingModel
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, Mode
+from hybrid_force_controller.core.runtime.inputs import ImplausibleWrench, InputError, WrenchGate
 import numpy as np
 import pytest
 

@@ -7,17 +7,17 @@ reason when nothing was given.
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray
-from hybrid_force_controller.core.params import ParameterValidationError
-from hybrid_force_controller.core.robot_model import default_urdf_path
-from hybrid_force_controller.ros.controller_node import ControllerNode
-from hybrid_force_controller.ros.qos import DESCRIPTION_QOS
+from hybrid_force_controller.core.config.params import ParameterValidationError
+from hybrid_force_controller.core.model.robot_model import default_urdf_path
+from hybrid_force_controller.ros.common.qos import DESCRIPTION_QOS
+from hybrid_force_controller.ros.controller.controller_node import ControllerNode
 import pytest
 from rclpy.parameter import Parameter
 from ros_helpers import domain_id, NodeProcess, parse_diagnostics, ROOT, Spun, wait_for
 from std_msgs.msg import String
 
 
-CTRL = 'hybrid_force_controller.ros.controller_node'
+CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 PANDA = ROOT / 'config' / 'panda_params.yaml'
 WAITING = "waiting for the URDF on '/r1/robot_description'"
 

@@ -13,15 +13,15 @@ from __future__ import annotations
 
 import math
 
-from hybrid_force_controller.core.effort import SafeHold
-from hybrid_force_controller.core.engine import LoopEngine
-from hybrid_force_controller.core.environment import ElasticSurface, sensor_wrench_from_f_W
-from hybrid_force_controller.core.params import build_params
-from hybrid_force_controller.core.reference import SineReference
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime, InputError
-from hybrid_force_controller.core.scenario import PAPER_Q0
-from hybrid_force_controller.core.simulator import ArmSimulator
+from hybrid_force_controller.core.config.params import build_params
+from hybrid_force_controller.core.law.reference import SineReference
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.engine import LoopEngine
+from hybrid_force_controller.core.offline.environment import ElasticSurface, sensor_wrench_from_f_W
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0
+from hybrid_force_controller.core.offline.simulator import ArmSimulator
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, InputError
+from hybrid_force_controller.core.runtime.effort import SafeHold
 import numpy as np
 import pytest
 

@@ -6,8 +6,8 @@ no stale state).
 """
 from __future__ import annotations
 
-from hybrid_force_controller.core.reference import BlendedReference, SineReference
-from hybrid_force_controller.core.robot_model import RobotModel
+from hybrid_force_controller.core.law.reference import BlendedReference, SineReference
+from hybrid_force_controller.core.model.robot_model import RobotModel
 import numpy as np
 import pytest
 from test_runtime import Loop

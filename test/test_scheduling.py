@@ -1,5 +1,5 @@
 """
-Where the nodes ask for SCHED_FIFO (ros/control_loop.py), checked in child processes.
+Where the nodes ask for SCHED_FIFO (ros/controller/control_loop.py), checked in child processes.
 
 * On more than one CPU, ``schedule_process`` gives the calling thread FIFO ``priority`` and the
   process's other threads (the middleware's) ``others``.
@@ -17,12 +17,12 @@ import os
 import subprocess
 import sys
 
-from hybrid_force_controller.ros.control_loop import rt_budget_on
+from hybrid_force_controller.ros.common.scheduling import rt_budget_on
 import pytest
 
 CHILD = """
 import json, os, threading, time
-from hybrid_force_controller.ros.control_loop import schedule_process
+from hybrid_force_controller.ros.common.scheduling import schedule_process
 stop = threading.Event()
 worker = threading.Thread(target=stop.wait)  # another thread, as the middleware's are
 worker.start()

@@ -7,7 +7,7 @@ exit code 0 and no traceback.
 The executables are started the way their console scripts call them (setup.py's entry
 points, checked here). A process is signalled once it is demonstrably running (a log line,
 its children, or CPU time spent in its main), never after a bare sleep. ``report`` shares
-``paper``'s Ctrl-C wrapper (ros/cli.py); it is not signalled here, as it may end before.
+``paper``'s Ctrl-C wrapper (ros/programs/cli.py); it is not signalled here, as it may end before.
 """
 from __future__ import annotations
 
@@ -18,18 +18,18 @@ import signal
 import subprocess
 import sys
 
-from hybrid_force_controller.ros.load import cpu_seconds
+from hybrid_force_controller.ros.programs.load import cpu_seconds
 import pytest
 from ros_helpers import domain_id, node_env, NodeProcess, ROOT, wait_for
 
 
 ENTRY_POINTS = {
-    'controller': 'hybrid_force_controller.ros.controller_node:main',
+    'controller': 'hybrid_force_controller.ros.controller.controller_node:main',
     'sim': 'sim_node.sim_node:main',
-    'paper': 'hybrid_force_controller.ros.cli:paper',
-    'bench': 'hybrid_force_controller.ros.bench:main',
-    'demo': 'hybrid_force_controller.ros.demo:main',
-    'report': 'hybrid_force_controller.ros.cli:report',
+    'paper': 'hybrid_force_controller.ros.programs.cli:paper',
+    'bench': 'hybrid_force_controller.ros.programs.bench:main',
+    'demo': 'hybrid_force_controller.ros.programs.demo:main',
+    'report': 'hybrid_force_controller.ros.programs.cli:report',
 }
 DOMAIN = domain_id('shutdown')
 
@@ -130,7 +130,8 @@ def test_sigint_ends_a_running_node_cleanly(tmp_path, exe, args):
 
 
 def test_sigint_ends_the_recorder_cleanly_and_closes_the_bag(tmp_path):
-    rec = NodeProcess('hybrid_force_controller.ros.recorder_node', tmp_path / 'rec.log', DOMAIN,
+    rec = NodeProcess('hybrid_force_controller.ros.programs.recorder_node', tmp_path / 'rec.log',
+                      DOMAIN,
                       params_file=None, argv=[str(tmp_path / 'bag')])
     with rec:
         wait_for(lambda: 'recording' in rec.log_since(), 'the recorder running', alive=[rec])

@@ -10,11 +10,12 @@ freezes over DDS are in test_realtime_stalls.py; the exact figures come from
 """
 from __future__ import annotations
 
-from hybrid_force_controller.core.engine import Event
-from hybrid_force_controller.core.recovery import Recovery, RecoveryConfig, RecoveryConfigError
-from hybrid_force_controller.core.runtime import Mode
-from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig
-from hybrid_force_controller.core.timing import Stall, TimingModel
+from hybrid_force_controller.core.offline.engine import Event
+from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
+from hybrid_force_controller.core.offline.timing import Stall, TimingModel
+from hybrid_force_controller.core.runtime.controller_runtime import Mode
+from hybrid_force_controller.core.runtime.recovery import (Recovery, RecoveryConfig,
+                                                           RecoveryConfigError)
 from hybrid_force_controller.tools.recovery_figures import (recovery_figures, settle_time,
                                                             theta_steady)
 import numpy as np

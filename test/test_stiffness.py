@@ -1,5 +1,5 @@
 """
-Online stiffness estimate (core/stiffness.py): unit tests on synthetic data.
+Online stiffness estimate (core/law/stiffness.py): unit tests on synthetic data.
 
 Fixed seeds.
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 import tracemalloc
 
-from hybrid_force_controller.core.filters import LowPassFilter
-from hybrid_force_controller.core.stiffness import (StiffnessConfig, StiffnessConfigError,
-                                                    StiffnessError, StiffnessEstimator)
+from hybrid_force_controller.core.law.stiffness import (StiffnessConfig, StiffnessConfigError,
+                                                        StiffnessError, StiffnessEstimator)
+from hybrid_force_controller.core.runtime.filters import LowPassFilter
 import numpy as np
 import pytest
 

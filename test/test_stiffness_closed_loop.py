@@ -16,10 +16,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from hybrid_force_controller.core.engine import Event
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig, ScenarioResult
-from hybrid_force_controller.core.timing import TimingModel
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.engine import Event
+from hybrid_force_controller.core.offline.scenario import (run_scenario, ScenarioConfig,
+                                                           ScenarioResult)
+from hybrid_force_controller.core.offline.timing import TimingModel
 from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pytest

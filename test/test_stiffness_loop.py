@@ -11,17 +11,17 @@ import dataclasses
 import math
 import tracemalloc
 
-from hybrid_force_controller.core.control_law import ControlError, HybridForceController
-from hybrid_force_controller.core.margin import (axis_margin, delay_margin,
-                                                 estimate_operating_points, K_S_GRID)
-from hybrid_force_controller.core.params import (build_params, CONTROLLER_SCHEMA,
-                                                 ParameterValidationError, STIFFNESS_FIELDS)
-from hybrid_force_controller.core.reference import SineReference
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.runtime import ControllerRuntime
-from hybrid_force_controller.core.scenario import PAPER_Q0
-from hybrid_force_controller.core.stiffness import StiffnessConfig
-from hybrid_force_controller.core.stiffness_loop import StiffnessLoop
+from hybrid_force_controller.core.config.params import (build_params, CONTROLLER_SCHEMA,
+                                                        ParameterValidationError, STIFFNESS_FIELDS)
+from hybrid_force_controller.core.law.control_law import ControlError, HybridForceController
+from hybrid_force_controller.core.law.margin import (axis_margin, delay_margin,
+                                                     estimate_operating_points, K_S_GRID)
+from hybrid_force_controller.core.law.reference import SineReference
+from hybrid_force_controller.core.law.stiffness import StiffnessConfig
+from hybrid_force_controller.core.law.stiffness_loop import StiffnessLoop
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
 import numpy as np
 import pytest
 from test_stiffness import DT, synthetic

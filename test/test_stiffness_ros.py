@@ -58,7 +58,7 @@ def test_estimate_within_10_percent_within_3_s_in_real_time(tmp_path, k):
     domain = domain_id('stiffness')
     procs = [NodeProcess('sim_node.sim_node', tmp_path / 'sim.log', domain,
                          ['-p', f'stiffness:={k}', '-p', 'masses:=[0.65, 1.35]']),
-             NodeProcess('hybrid_force_controller.ros.controller_node',
+             NodeProcess('hybrid_force_controller.ros.controller.controller_node',
                          tmp_path / 'controller.log', domain)]
     with Spun(domain) as spun:
         w = spun.add(_Watcher(spun.context))

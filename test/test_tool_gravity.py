@@ -1,5 +1,5 @@
 """
-Tool gravity compensation (``tool_mass``, ``tool_com``; core/tool_gravity.py), offline.
+Tool gravity compensation (``tool_mass``, ``tool_com``; core/model/tool_gravity.py), offline.
 
 With ``tool_mass = 0`` the controller is exactly today's (bitwise-identical efforts, whatever
 ``tool_com``); with a tool whose weight the wrist sensor reads, ``tool_mass`` removes it and the
@@ -7,10 +7,10 @@ efforts are those of the run without a tool; without it the weight is taken for 
 """
 from __future__ import annotations
 
-from hybrid_force_controller.core.params import build_params, ParameterValidationError
-from hybrid_force_controller.core.robot_model import RobotModel
-from hybrid_force_controller.core.scenario import run_scenario, ScenarioConfig
-from hybrid_force_controller.core.tool_gravity import tool_weight_S, tool_weight_W
+from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.model.tool_gravity import tool_weight_S, tool_weight_W
+from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
 import numpy as np
 import pytest
 

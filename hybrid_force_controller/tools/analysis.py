@@ -106,7 +106,7 @@ class RunLog:
         """
         Build the log of an offline run.
 
-        ``result`` is a :class:`~hybrid_force_controller.core.scenario.ScenarioResult`.
+        ``result`` is a :class:`~hybrid_force_controller.core.offline.scenario.ScenarioResult`.
         """
         return cls(t=result.t, x_W=result.x_W, x_d_W=result.x_d_W, f_W=result.f_W,
                    f_d_W=result.f_d_W, n_W=result.n_W, theta_hat=result.theta_hat,

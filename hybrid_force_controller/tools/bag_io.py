@@ -26,7 +26,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 
 from .analysis import align, AnalysisError, RunLog
-from ..core.contact import CONTACT_FORCE_MIN_N, in_contact
+from ..core.runtime.contact import CONTACT_FORCE_MIN_N, in_contact
 
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
            'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',

@@ -20,7 +20,7 @@ import time
 from typing import Sequence
 
 from .analysis import compute_metrics, json_safe, RunLog
-from ..core.scenario import run_scenario, ScenarioConfig
+from ..core.offline.scenario import run_scenario, ScenarioConfig
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -7,8 +7,8 @@ overrides values. :func:`build_params` validates a full set once and freezes it 
 :class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
 (26), (29) of [1]), the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
 filter, reference, timeouts, approach, sensor plausibility, tool mass) and the online stiffness
-estimate's (:class:`~.stiffness.StiffnessConfig`, group ``stiffness``) and the recovery from
-stalls and drops (:class:`~.recovery.RecoveryConfig`, group ``recovery``). Pure Python + numpy.
+estimate's (:class:`~.groups.StiffnessConfig`, group ``stiffness``) and the recovery from
+stalls and drops (:class:`~.groups.RecoveryConfig`, group ``recovery``). Pure Python + numpy.
 """
 from __future__ import annotations
 
@@ -19,10 +19,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .recovery import RecoveryConfig, RecoveryConfigError
+from .groups import RecoveryConfig, RecoveryConfigError, StiffnessConfig, StiffnessConfigError
 from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, ParamSpec, RECOVERY_FIELDS
 from .schema import STIFFNESS_FIELDS
-from .stiffness import StiffnessConfig, StiffnessConfigError
 
 __all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'LawGains', 'ParamSpec',
            'ParameterValidationError', 'RuntimeConfig', 'build_params', 'check_stability',

@@ -61,9 +61,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .params import LawGains
+from .adaptation import adapt_theta, adaptation_weight
 from .reference import Reference
-from .robot_model import RobotModel, TaskKinematics
+from ..config.params import LawGains
+from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
            'adapt_theta']
@@ -146,19 +147,6 @@ def small_inverse(A: np.ndarray) -> np.ndarray:
             raise np.linalg.LinAlgError('singular matrix (a singular pose)')
         return np.array(adj) / det
     return np.linalg.inv(A)
-
-
-def adapt_theta(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_x: np.ndarray, e: np.ndarray,
-                dt: float, theta_min: np.ndarray, theta_max: np.ndarray) -> np.ndarray:
-    """
-    Adaptation law, eq. (26) of [1], with projection onto a box.
-
-    ``theta_hat_dot = -Gamma^-1 Y_x^T e``, integrated over ``dt`` (explicit Euler), then
-    clipped to ``[theta_min, theta_max]``. With a diagonal Gamma the clip is the
-    orthogonal projection in the Gamma metric, so the Lyapunov term
-    ``theta_tilde^T Gamma theta_tilde`` does not grow (the true theta lies in the box).
-    """
-    return np.minimum(np.maximum(theta_hat - dt * Gamma_inv.dot(e.dot(Y_x)), theta_min), theta_max)
 
 
 class HybridForceController:
@@ -362,24 +350,10 @@ class HybridForceController:
         if dt > 0.0:
             if approach is not None:  # adapt on the motion along the surface only
                 s = J_pinv @ (e - d.n * float(d.n @ e))
-            self._integrate(Y_q, s * self._adaptation_weight(e) if adapt else None, df_n, dt,
+            self._integrate(Y_q, s * adaptation_weight(e, g.adapt_error_limit, g.adapt_dead_zone)
+                            if adapt else None, df_n, dt,
                             in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
-
-    def _adaptation_weight(self, e: np.ndarray) -> float:
-        """
-        Scale of e in (26): the saturation to ``adapt_error_limit`` and the dead zone.
-
-        ``w = min(1, e_lim / |e|) max(0, 1 - d / |e|)``: a transient (``|e| > e_lim``) adapts
-        in the direction of e with a bounded size (module docstring); an error below the dead
-        zone d (sensor noise) does not adapt at all, and w is continuous in e.
-        """
-        g = self._d.gains
-        e_norm = math.sqrt(e.dot(e))
-        if e_norm <= g.adapt_dead_zone:
-            return 0.0
-        w = 1.0 if e_norm <= g.adapt_error_limit else g.adapt_error_limit / e_norm
-        return w * (1.0 - g.adapt_dead_zone / e_norm) if g.adapt_dead_zone > 0.0 else w
 
     def _integrate(self, Y_q: np.ndarray, s: np.ndarray | None, df_n: float, dt: float,
                    force_loop: bool) -> None:

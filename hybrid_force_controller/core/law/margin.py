@@ -34,9 +34,9 @@ import math
 
 import numpy as np
 
-from .params import LawGains
-from .robot_model import RobotModel
 from .stiffness import StiffnessConfig
+from ..config.params import LawGains
+from ..model.robot_model import RobotModel
 
 __all__ = ['K_S_GRID', 'MarginCache', 'axis_loop', 'axis_margin', 'delay_margin',
            'estimate_operating_points', 'margins']

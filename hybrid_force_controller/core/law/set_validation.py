@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from .margin import MarginCache
-from .params import build_params, ControllerParams, ParameterValidationError
-from .robot_model import RobotModel
+from ..config.params import build_params, ControllerParams, ParameterValidationError
+from ..model.robot_model import RobotModel
 
 __all__ = ['SetValidator', 'model_for_another_thread']
 

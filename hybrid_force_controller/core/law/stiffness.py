@@ -59,104 +59,15 @@ surface unknown again: the fit restarts from the prior and the k_s command jumps
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 import math
+
+from ..config.groups import StiffnessConfig, StiffnessConfigError, StiffnessError
 
 __all__ = ['MIN_SAMPLES', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
            'StiffnessEstimator']
 
 MIN_SAMPLES = 20.0  # effective exciting samples before the estimate may be valid (S6)
 CHANGE_TIME = 0.02  # T_c of (S9), s: |eps| must exceed delta_c by this much force x time
-
-
-class StiffnessError(ValueError):
-    """The estimator was called with an argument it cannot use (e.g. ``dt <= 0``)."""
-
-
-class StiffnessConfigError(StiffnessError):
-    """A stiffness-estimator setting is rejected; the message names it and says why."""
-
-
-_POSITIVE = ('k_min', 'k_max', 'k_s0', 'time_constant', 'excitation_window', 'valid_tol',
-             'k_s_rate_down', 'k_s_rate_up', 'regularisation', 'force_floor')
-_NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'change_force',
-                 'force_filter_hz')
-
-
-@dataclass(frozen=True)
-class StiffnessConfig:
-    """
-    Validated settings of :class:`StiffnessEstimator`.
-
-    Symbols of the module docstring; the schema names are in ``params.py``, group ``stiffness``.
-
-    Attributes
-    ----------
-    enabled : the law uses k_s from (S7) (False: the configured ``k_s0``; the estimate
-        still runs and is reported).
-    k_min, k_max : bounds of k_hat, N/m (``0 < k_min < k_max``).
-    k_s0 : the configured k_s of eq. (11), N/m: the design stiffness of lambda2.
-    k_hat0 : prior of k_hat and first k_s command, N/m; 0 means ``k_s0`` (clipped to the
-        bounds), see :attr:`prior`.
-    time_constant : T_f of (S3), s; at least 20 control periods, else (S6) never holds.
-    excitation, excitation_window : delta_f (N) and T_e (s) of (S5).
-    valid_tol : tol of (S6).
-    k_s_time_constant : T_s of (S7), s (0: no lag, rate limits only).
-    k_s_rate_down, k_s_rate_up : rate limits of (S7), 1/s.
-    k_max_margin : margin of (S8).
-    change_force : delta_c of (S9), N (0: no change test).
-    regularisation : rho of (S3)-(S4); force_floor : sigma floor of (S6), N.
-    force_filter_hz : cut-off of the caller's force filter, Hz (0: none), for (S0).
-
-    """
-
-    enabled: bool = True
-    k_min: float = 50.0
-    k_max: float = 6000.0
-    k_s0: float = 6000.0
-    k_hat0: float = 0.0
-    time_constant: float = 2.0
-    excitation: float = 0.05
-    excitation_window: float = 0.2
-    valid_tol: float = 0.05
-    k_s_time_constant: float = 0.1
-    k_s_rate_down: float = 10.0
-    k_s_rate_up: float = 20.0
-    k_max_margin: float = 0.2
-    change_force: float = 0.2
-    regularisation: float = 1e-2
-    force_floor: float = 0.01
-    force_filter_hz: float = 200.0
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.enabled, bool):
-            raise StiffnessConfigError(f'enabled must be a bool, got {self.enabled!r}')
-        for f in fields(self)[1:]:
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise StiffnessConfigError(f'{f.name} must be a number, got {value!r}')
-            if not math.isfinite(value):
-                raise StiffnessConfigError(f'{f.name} must be finite, got {value}')
-            object.__setattr__(self, f.name, float(value))
-        for name in _POSITIVE:
-            if not getattr(self, name) > 0.0:
-                raise StiffnessConfigError(f'{name} must be > 0, got {getattr(self, name):g}')
-        for name in _NON_NEGATIVE:
-            if getattr(self, name) < 0.0:
-                raise StiffnessConfigError(f'{name} must be >= 0, got {getattr(self, name):g}')
-        if not self.k_min < self.k_max:
-            raise StiffnessConfigError(
-                f'need k_min < k_max, got k_min = {self.k_min:g}, k_max = {self.k_max:g}')
-        if self.k_hat0 != 0.0 and not self.k_min <= self.k_hat0 <= self.k_max:
-            raise StiffnessConfigError(f'k_hat0 = {self.k_hat0:g} is outside '
-                                       f'[k_min, k_max] = [{self.k_min:g}, {self.k_max:g}]')
-        if not 0.0 <= self.k_max_margin < 1.0 or not self.valid_tol < 1.0:
-            raise StiffnessConfigError('k_max_margin must be in [0, 1) and valid_tol in (0, 1)')
-
-    @property
-    def prior(self) -> float:
-        """Return the prior of k_hat, N/m: ``k_hat0``, or ``k_s0`` clipped to the bounds if 0."""
-        return self.k_hat0 or min(max(self.k_s0, self.k_min), self.k_max)
 
 
 class StiffnessEstimator:

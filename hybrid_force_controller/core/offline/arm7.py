@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot_model import RobotModel
 from .scenario import ScenarioConfig
+from ..model.robot_model import RobotModel
 
 __all__ = ['PANDA_JOINTS', 'PANDA_Q0', 'panda_model', 'panda_scenario', 'panda_urdf_path']
 

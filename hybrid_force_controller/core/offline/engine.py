@@ -23,8 +23,8 @@ from typing import Any, Callable, Protocol, Sequence
 import numpy as np
 
 from .environment import sensor_wrench_from_f_W
-from .runtime import ControllerRuntime, Mode
 from .timing import Schedule, TimingModel
+from ..runtime.controller_runtime import ControllerRuntime, Mode
 
 __all__ = ['COMMAND_TIMEOUT_S', 'Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop']
 

@@ -13,14 +13,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .contact import in_contact
 from .engine import COMMAND_TIMEOUT_S, Event, LoopLog, run_loop
 from .environment import ElasticSurface
-from .params import build_params
-from .robot_model import RobotModel
-from .runtime import ControllerRuntime
 from .simulator import ArmSimulator
 from .timing import TimingModel
+from ..config.params import build_params
+from ..model.robot_model import RobotModel
+from ..runtime.contact import in_contact
+from ..runtime.controller_runtime import ControllerRuntime
 
 __all__ = ['PAPER_Q0', 'ScenarioConfig', 'ScenarioResult', 'run_scenario']
 

@@ -12,9 +12,9 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
-from .contact import in_contact
 from .environment import ElasticSurface
-from .robot_model import RobotModel
+from ..model.robot_model import RobotModel
+from ..runtime.contact import in_contact
 
 __all__ = ['ArmSimulator', 'Measurement', 'SimulatorError']
 

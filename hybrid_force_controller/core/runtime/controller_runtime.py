@@ -4,7 +4,8 @@ What the controller node does between messages, as plain arrays (no rclpy here).
 The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
 converts the result back; the offline engine (engine.py) drives the same object. The
 runtime owns the latest inputs (latest_inputs.py: checked, plausible, their staleness, the
-force filter), the reference, the contact state and an explicit mode (:class:`Mode`):
+force filter), the motion (motion.py: the reference along the surface, the approach along n),
+the run's times (run_clock.py), the contact state and an explicit mode (:class:`Mode`):
 
 * ``WAITING``: no joint state or wrench yet (after start-up or a clock restart);
 * ``RUNNING``: the law of [1] with its force loop along n (control_law.py);
@@ -16,8 +17,8 @@ force filter), the reference, the contact state and an explicit mode (:class:`Mo
 
 Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference
 from the arm's position and velocity (no effort jump; after ``SAFE`` the reference goes on from
-where it paused); the hand-over from an approach to
-the force loop aligns the force integral so r is continuous. theta_hat and h integrate
+where it paused); the hand-over from an approach to the force loop aligns the force integral so
+r is continuous. theta_hat and h integrate
 over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
 tick without a new state recomputes the command and integrates nothing, and a late state
 after a gap integrates a bounded step. Every new state also feeds the online stiffness
@@ -26,43 +27,27 @@ are seconds on the caller's clock.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
 from typing import Any, Sequence
 
 import numpy as np
 
-from .approach import Approach, Handover
-from .bumpless import RestartBlend
 from .contact import ContactDetector, in_contact
-from .control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
 from .effort import EffortLimiter, SafeHold
 from .inputs import InputError
 from .latest_inputs import LatestInputs
 from .modes import Mode, TickOutput
-from .params import ControllerParams
+from .motion import Motion, reference_changed
 from .recovery import Recovery
-from .reference import BlendedReference, SineReference
-from .robot_model import ModelError, RobotModel
-from .set_validation import SetValidator
-from .stiffness_loop import StiffnessLoop, StiffnessStatus
+from .run_clock import RunClock
+from ..config.params import ControllerParams
+from ..law.bumpless import RestartBlend
+from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
+from ..law.set_validation import SetValidator
+from ..law.stiffness_loop import StiffnessLoop, StiffnessStatus
+from ..model.robot_model import ModelError, RobotModel
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
-
-
-@dataclass
-class _Clock:
-    """
-    The run's times, s.
-
-    ``t0`` the stamp of its first state (the reference's origin, moved on by the time spent in
-    safe mode), the latest tick, and the stamp of the state the last integration used.
-    """
-
-    t0: float | None = None
-    t_tick: float = -math.inf
-    t_used: float = -math.inf
-    t_pause: float | None = None  # the reference's time stopped here (safe mode's entry)
 
 
 _STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
@@ -84,12 +69,8 @@ class ControllerRuntime:
         self._in = LatestInputs(model, params.runtime, self.counters)
         self._limiter = EffortLimiter(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
-        self._approach = Approach(0.0, 0.0)
-        self._ref = BlendedReference(_sine(params), params.law.n, params.runtime.ref_blend_time)
-        self._clock = _Clock()
-        self._r_n = 0.0
-        self._rdot_n = 0.0
-        self._handover = Handover()
+        self._motion = Motion(params, model.task_index)
+        self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self.validator = SetValidator(model)
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
@@ -128,14 +109,10 @@ class ControllerRuntime:
         ``ref_blend_time``) releases a held point and blends from the current reference;
         a stopped approach (``NO_SURFACE``) starts again from where the tool is.
         """
-        old, new = self._params.runtime, params.runtime
-        changed = any(not np.array_equal(getattr(new, k), getattr(old, k)) for k in
-                      ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time'))
-        changed = changed or not np.array_equal(params.law.n, self._params.law.n)
+        changed = reference_changed(self._params, params)
         self._install(params)
         if changed:
-            self._ref.switch(self.run_time, sine=_sine(params), release=True,
-                             n_W=params.law.n, t_blend=new.ref_blend_time)
+            self._motion.replan(params, self.run_time)
         if self.mode == Mode.NO_SURFACE:
             self._enter_approach()
 
@@ -148,7 +125,7 @@ class ControllerRuntime:
         order = [self.model.joint_names.index(j) for j in rt.joints]
         self._cmd_order = None if order == list(range(len(order))) else order
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
-        self._approach.configure(rt.approach_speed, rt.approach_limit)
+        self._motion.configure(params)
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
         self.f_d_W = params.law.f_d * params.law.n
@@ -179,14 +156,13 @@ class ControllerRuntime:
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
-        self._ref.switch(self.run_time, x_hold_W=x)
+        self._motion.hold(self.run_time, x)
 
     # ------------------------------------------------------------------ queries
     @property
     def run_time(self) -> float:
         """Time since the run started, at the latest joint state (the reference's time)."""
-        c = self._clock
-        return 0.0 if c.t0 is None or self._in.state is None else self._in.state.t - c.t0
+        return 0.0 if self._in.state is None else self._clock.tau(self._in.state.t)
 
     @property
     def state_stamp(self) -> float:
@@ -213,7 +189,7 @@ class ControllerRuntime:
     def desired_position(self, t: float) -> np.ndarray:
         """Return the reference position at time ``t`` on the caller's clock (base frame)."""
         t0 = self._clock.t0
-        return self._ref(0.0 if t0 is None else t - t0).x_d_W
+        return self._motion(0.0 if t0 is None else t - t0).x_d_W
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
@@ -246,7 +222,7 @@ class ControllerRuntime:
         if kind:  # the last tick's force transient or tracking fault
             self._begin(kind, t)
         approach = self._approach_ref(dt_state)
-        ref = self._ref(self.run_time)
+        ref = self._motion(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self._params.law.f_d),
@@ -257,51 +233,26 @@ class ControllerRuntime:
             return self._safe(f_W, f'control law failed: {exc}', t)
         if dt_state > 0.0:
             self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
-        self._r_n, self._rdot_n = out.r_n, out.rdot_n
+        self._motion.r_n, self._motion.rdot_n = out.r_n, out.rdot_n
         self._observe(t, f_n, out.e, touching)
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref.x_d_W, f_W)
 
     def _state_step(self, gap: bool) -> tuple[float, float]:
-        """
-        Return the time since the state the last integration used, and the part to integrate.
-
-        The time is 0 if no state is new, or after a gap (a stall or a restart: nothing
-        integrates across it, nor does the stiffness estimate see it); the part of it
-        theta_hat and h integrate is at most ``max_integration_dt``.
-        """
-        c, t = self._clock, self._in.state.t
-        if gap:
-            c.t_used = max(c.t_used, t)
-            return 0.0, 0.0
-        if t <= c.t_used:
-            self.counters['stale_ticks'] += 1
-            return 0.0, 0.0
-        dt = self._period if c.t_used == -math.inf else t - c.t_used
-        c.t_used = t
-        limit = self._params.runtime.max_integration_dt
-        if dt > limit:
-            self.counters['late_states'] += 1
-        return dt, min(dt, limit)
+        """Return the time since the last integrated state and the part to integrate (RunClock)."""
+        dt, dt_int, why = self._clock.state_step(self._in.state.t, gap, self._period,
+                                                 self._params.runtime.max_integration_dt)
+        if why:
+            self.counters['stale_ticks' if why == 'stale' else 'late_states'] += 1
+        return dt, dt_int
 
     def _start(self, touching: bool) -> None:
-        """
-        (Re)start: the reference blends from the arm's position and velocity.
-
-        After safe mode the reference goes on from where it paused: its time stood still
-        during the hold, so the task is not cut short and the blend has no distance to catch
-        up (a sine that ran on moved the force by up to 0.25 N while catching up).
-        """
-        c, t = self._clock, self._in.state.t
-        if c.t0 is None:
-            c.t0 = t
-        elif self.mode == Mode.SAFE and c.t_pause is not None:
-            c.t0 += max(t - c.t_pause, 0.0)
-        c.t_pause = None
+        """(Re)start: the reference blends from the arm (after safe mode: where it paused)."""
+        self._clock.resume(self._in.state.t, after_pause=self.mode == Mode.SAFE)
         self.mode = Mode.RUNNING
         self._blend_from_arm()
-        if not touching and self._approach.speed > 0.0:
+        if not touching and self._motion.can_approach:
             self._enter_approach()
 
     def _blend_from_arm(self) -> None:
@@ -309,38 +260,34 @@ class ControllerRuntime:
         kin = self._in.kin()
         pdot_W = np.zeros(3)
         pdot_W[self.model.task_index] = kin.xdot
-        self._ref.start_from(self.run_time, kin.p_W, pdot_W)
-        self._r_n = float(self._params.law.n @ pdot_W)
+        self._motion.start_from(self.run_time, kin.p_W, pdot_W)
 
     def _switch(self, touching: bool, f_W: np.ndarray, t: float) -> None:
         """Contact lost: approach (an episode); contact found: the force loop, r continuous."""
-        if self.mode == Mode.RUNNING and not touching and self._approach.speed > 0.0:
+        if self.mode == Mode.RUNNING and not touching and self._motion.can_approach:
             self._begin('contact_loss', t)
             self._enter_approach()
         elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
             r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._params.law.n @ f_W))
-            self._handover.start(self._in.state.t, self._r_n - r_f, self._rdot_n - rdot_f)
+            self._motion.start_handover(self._in.state.t, r_f, rdot_f)
             self.mode = Mode.RUNNING
 
     def _handover_bias(self) -> tuple[float, float]:
         """Return the approach's part of r and rdot along n still fading (approach.py)."""
         if self.mode != Mode.RUNNING:
             return 0.0, 0.0
-        return self._handover.bias(self._in.state.t)
+        return self._motion.handover_bias(self._in.state.t)
 
     def _enter_approach(self) -> None:
-        kin = self._in.kin()
-        x_n = float(self._params.law.n[self.model.task_index] @ kin.x)
-        self._approach.start(x_n, self._r_n)
+        self._motion.enter_approach(self._in.kin().x)
         self.counters['approach_entries'] += 1
         self.mode = Mode.APPROACH
 
     def _approach_ref(self, dt: float) -> ApproachRef | None:
         if self.mode not in (Mode.APPROACH, Mode.NO_SURFACE):
             return None
-        kin = self._in.kin()
-        ref = self._approach.step(dt, float(self._params.law.n[self.model.task_index] @ kin.x))
-        if self._approach.exhausted:
+        ref = self._motion.approach_step(dt, self._in.kin().x)
+        if self._motion.approach.exhausted:
             self.mode = Mode.NO_SURFACE
         return ref
 
@@ -352,7 +299,7 @@ class ControllerRuntime:
         """
         self.counters['clock_restarts'] += 1
         self._in.reset()
-        self._clock = _Clock()
+        self._clock = RunClock()
         self.mode = Mode.WAITING
         self._contact.reset()
         self._limiter.reset()
@@ -400,7 +347,7 @@ class ControllerRuntime:
             self.last_safe_reason = status
             self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
             self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._tau_last)
-            self._clock.t_pause = s.t  # the reference pauses (_start)
+            self._clock.pause(s.t)  # the reference pauses (_start)
         self.mode = Mode.SAFE
         fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
@@ -432,8 +379,3 @@ class ControllerRuntime:
         return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat)
-
-
-def _sine(params: ControllerParams) -> SineReference:
-    rt = params.runtime
-    return SineReference(rt.ref_center, rt.ref_amplitude, rt.ref_omega)

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from .robot_model import RobotModel
+from ..model.robot_model import RobotModel
 
 __all__ = ['EffortLimiter', 'SafeHold']
 

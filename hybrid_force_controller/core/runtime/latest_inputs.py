@@ -17,9 +17,9 @@ import numpy as np
 from .filters import LowPassFilter
 from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
                      WrenchSample)
-from .params import RuntimeConfig
-from .robot_model import RobotModel, TaskKinematics
-from .tool_gravity import tool_weight_W
+from ..config.params import RuntimeConfig
+from ..model.robot_model import RobotModel, TaskKinematics
+from ..model.tool_gravity import tool_weight_W
 
 __all__ = ['LatestInputs']
 

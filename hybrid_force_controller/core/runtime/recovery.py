@@ -26,58 +26,17 @@ Time is an argument: the caller passes the tick's time; nothing here reads a clo
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
 
 import numpy as np
+
+from ..config.groups import RecoveryConfig, RecoveryConfigError
 
 __all__ = ['EPISODE_KINDS', 'Recovery', 'RecoveryConfig', 'RecoveryConfigError']
 
 #: what starts an episode (the /diagnostics counters are ``episodes_<kind>``)
 EPISODE_KINDS = ('stall', 'restart', 'contact_loss', 'safe_mode', 'force_transient',
                  'tracking_fault')
-
-
-class RecoveryConfigError(ValueError):
-    """An inconsistent recovery configuration."""
-
-
-@dataclass(frozen=True)
-class RecoveryConfig:
-    """
-    The ``recovery`` group of the schema (module docstring).
-
-    Attributes
-    ----------
-    enabled : episodes freeze adaptation at the trusted estimate (false: only counted).
-    stall_periods : a gap between ticks longer than this many periods is a stall.
-    calm_time : calm this long ends an episode and makes theta_hat trusted, s.
-    calm_force : calm force error, N.
-    calm_error : calm tracking error ``|e|``, m/s.
-    transient_force : a force error above this starts an episode, N (0: off).
-    transient_error : a tracking error above this starts an episode, m/s (0: off).
-
-    """
-
-    enabled: bool = True
-    stall_periods: float = 10.0
-    calm_time: float = 0.5
-    calm_force: float = 0.2
-    calm_error: float = 0.02
-    transient_force: float = 3.0
-    transient_error: float = 0.25
-
-    def __post_init__(self) -> None:
-        values = (self.stall_periods, self.calm_time, self.calm_force, self.calm_error,
-                  self.transient_force, self.transient_error)
-        if not all(math.isfinite(v) and v >= 0.0 for v in values):
-            raise RecoveryConfigError(f'recovery settings must be finite and >= 0: {self}')
-        if self.stall_periods < 2.0:
-            raise RecoveryConfigError('stall_periods must be >= 2 (a late tick is no stall)')
-        for calm, transient, name in ((self.calm_force, self.transient_force, 'force'),
-                                      (self.calm_error, self.transient_error, 'error')):
-            if transient > 0.0 and not calm < transient:
-                raise RecoveryConfigError(f'calm_{name} must be below transient_{name}')
 
 
 class Recovery:

@@ -2,14 +2,14 @@
 Parameters of the ROS nodes themselves (not of the control law): one schema per node.
 
 Declared through :func:`~.parameters.declare_schema` like the controller's
-:data:`~hybrid_force_controller.core.params.CONTROLLER_SCHEMA`, so they have descriptors,
+:data:`~hybrid_force_controller.core.config.params.CONTROLLER_SCHEMA`, so they have descriptors,
 ranges and appear in ``ros2 param dump``.
 """
 from __future__ import annotations
 
 import os
 
-from ..core.params import ParamSpec as _S
+from ...core.config.params import ParamSpec as _S
 
 __all__ = ['CONTROLLER_NODE_SCHEMA', 'CPU_AFFINITY_SPEC', 'EXECUTOR_SPEC', 'SENSOR_QOS',
            'THREAD_PRIORITY_SPEC', 'TICK_MODES', 'check_choice', 'check_cpus']

@@ -21,7 +21,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.params import check_stability, ParameterValidationError, ParamSpec
+from ...core.config.params import check_stability, ParameterValidationError, ParamSpec
 
 __all__ = ['ParameterBinder', 'check_values', 'declare_schema', 'descriptor_for',
            'normalise_value']

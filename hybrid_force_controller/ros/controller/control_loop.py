@@ -15,20 +15,19 @@ controller node's thread, and meets this one only through three lock-free hand-o
   node publishes every 10 ms), :attr:`events` (mode changes and
   callback errors, logged by the node), :attr:`errors` (callback errors by kind) and
   :attr:`holds` (how long each callback held the thread,
-  :class:`~hybrid_force_controller.core.loop_stats.HoldStats`).
+  :class:`~hybrid_force_controller.core.runtime.loop_stats.HoldStats`).
 
 This is the split realtime_tools and ros2_control make (parameters reach ``update()``
 through a real-time buffer; the update loop never publishes through a plain publisher
 from another thread). The thread asks for ``SCHED_FIFO`` at ``thread_priority`` (as
 controller_manager does, 50 by default) and for ``cpu_affinity``; the executable's
 ``main`` puts the middleware's threads (which deliver its input) just below, and the node's
-thread below those (:func:`schedule_process`).
+thread below those (:func:`~..common.scheduling.schedule_process`).
 A refusal is reported, and the loop runs on.
 """
 from __future__ import annotations
 
 from collections import deque
-import os
 import sys
 import threading
 import time
@@ -40,15 +39,15 @@ from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-from .cdr import read_joint_state, read_wrench_stamped
-from .loop_timing import DelayStats, RateMeter
-from .runner import make_executor
 from .telemetry import EffortOutput
-from ..core.loop_stats import hold_phases, HoldStats, LoopStats
-from ..core.runtime import ControllerRuntime, InputError
+from ..common.cdr import read_joint_state, read_wrench_stamped
+from ..common.loop_timing import DelayStats, RateMeter
+from ..common.runner import make_executor
+from ..common.scheduling import set_thread_scheduling
+from ...core.runtime.controller_runtime import ControllerRuntime, InputError
+from ...core.runtime.loop_stats import hold_phases, HoldStats, LoopStats
 
-__all__ = ['ControlLoop', 'LoopSettings', 'one_cpu_reason', 'rt_budget_on', 'schedule_process',
-           'set_thread_scheduling']
+__all__ = ['ControlLoop', 'LoopSettings']
 
 CALLBACK_KINDS = ('joint_states', 'wrench', 'timer')  # what runs on the control thread
 WATCHDOG_PERIODS = 5  # tick_mode joint_state: the watchdog checks every 5 periods
@@ -56,10 +55,6 @@ SPIN_SLICE_S = 0.1
 # The GIL: a thread that wants it waits at most this long for the holder to let it go (the
 # default 5 ms would let the node's thread hold the control thread for 5 ms)
 GIL_SWITCH_S = 0.0002
-LIMITS_HINT = ('allow real-time scheduling for your user, as the ros2_control docs say: add '
-               "'@realtime soft rtprio 99', '@realtime soft priority 99', '@realtime soft "
-               "memlock unlimited' (and the hard ones) to /etc/security/limits.conf, add "
-               'yourself to the realtime group, log in again; or set thread_priority:=0')
 
 
 class LoopSettings:
@@ -71,99 +66,6 @@ class LoopSettings:
         self.topics, self.qos_in, self.period = topics, qos_in, period
         self.tick_mode, self.executor, self.use_sim_time = tick_mode, executor, use_sim_time
         self.thread_priority, self.cpu_affinity = thread_priority, tuple(cpu_affinity)
-
-
-def rt_budget_on() -> bool:
-    """Say whether the kernel limits real-time threads (``kernel.sched_rt_runtime_us`` >= 0)."""
-    try:
-        with open('/proc/sys/kernel/sched_rt_runtime_us', encoding='ascii') as f:
-            return int(f.read().strip()) >= 0
-    except (OSError, ValueError):
-        return True  # unknown: assume the default budget
-
-
-def one_cpu_reason() -> str:
-    """
-    Say why SCHED_FIFO is not used when this process may run on one CPU only ('' otherwise).
-
-    ``taskset -c 0`` or a 1-core PC: the real-time threads of every process on that CPU
-    share its real-time budget (``kernel.sched_rt_runtime_us``, 95 % of each second). A sim
-    and a controller at FIFO on one CPU used it up here: the kernel then stopped every FIFO
-    thread for up to 50 ms (`RT throttling activated`), and the plant's watchdog dropped the
-    arm (537 ms without a command, 17 timeouts in 20 s); with the middleware at normal
-    priority beside the FIFO loops, that middleware starved instead (110 ms). At normal
-    priority both ran clean (docs/results.md, section 1). With the budget off
-    (``sched_rt_runtime_us = -1``, a tuned real-time machine) FIFO is used on one CPU too.
-    """
-    try:
-        if len(os.sched_getaffinity(os.getpid())) != 1 or not rt_budget_on():
-            return ''
-    except (OSError, AttributeError):
-        return ''
-    return ('this process may run on one CPU only and the kernel limits real-time threads to '
-            'sched_rt_runtime_us of each second: SCHED_FIFO is not used (normal priority), '
-            'so that the other processes on that CPU (the sim, the middleware) are not '
-            'starved; give the process more CPUs, or set kernel.sched_rt_runtime_us=-1 on a '
-            'tuned real-time machine')
-
-
-def set_thread_scheduling(priority: int, cpus: Sequence[int]) -> list[str]:
-    """
-    Give the calling thread SCHED_FIFO at ``priority`` (0: leave it) and pin it to ``cpus``.
-
-    Returns the warnings (empty when everything was granted); never raises.
-    """
-    warnings = []
-    shared = one_cpu_reason() if priority > 0 else ''
-    if shared:
-        warnings.append(shared)
-    elif priority > 0:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        except (OSError, AttributeError) as exc:
-            warnings.append(f'could not set SCHED_FIFO priority {priority} on the control '
-                            f'thread ({exc}); it runs at normal priority: {LIMITS_HINT}')
-    if cpus:
-        try:
-            os.sched_setaffinity(0, set(cpus))
-        except (OSError, AttributeError, ValueError) as exc:
-            warnings.append(f'could not pin the control thread to CPUs {list(cpus)} ({exc}); '
-                            'it runs on any CPU')
-    return warnings
-
-
-def schedule_process(priority: int, what: str, keep: tuple[int, ...] = (),
-                     cpus: Sequence[int] = (), others: int | None = None) -> list[str]:
-    """
-    Give the calling thread SCHED_FIFO ``priority`` and the process's other threads ``others``.
-
-    Called by a node's ``main`` on the thread that spins the node, once the node exists: the
-    other threads then are the middleware's (DDS receive, events, shared-memory watchdog).
-    A loop that waits for a DDS thread to deliver its input, or for the node's thread to let
-    the GIL go, waits as long as ordinary processes keep those threads off the CPU (a
-    priority inversion: 167 ms holds and 217 ms effort gaps beside two busy processes); at
-    FIFO they preempt ordinary processes, and a loop above them still preempts them.
-    ``keep``: thread ids left as they are (a control thread scheduled already); ``cpus``:
-    the calling thread's CPUs; ``others`` (default ``priority - 1``): the priority of the
-    other threads. ``priority`` <= 0 leaves the scheduler alone. Returns the first warning,
-    if any.
-    """
-    if priority <= 0:
-        return []
-    me = threading.get_native_id()
-    shared = one_cpu_reason()  # then no thread gets FIFO; cpus still apply
-    warnings = set_thread_scheduling(0 if shared else priority, cpus)
-    if shared:
-        return [shared]
-    level = max(1, priority - 1 if others is None else others)
-    tids = [int(t) for t in os.listdir('/proc/self/task') if int(t) not in (me, *keep)]
-    for tid in tids:
-        try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(level))
-        except OSError as exc:
-            warnings.append(f'could not set SCHED_FIFO on the middleware threads ({exc})')
-            break
-    return [w.replace('control thread', what) for w in warnings[:1]]
 
 
 class ControlLoop:

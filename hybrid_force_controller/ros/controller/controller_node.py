@@ -29,7 +29,6 @@ from collections import Counter
 import gc
 import math
 import sys
-import time
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -38,19 +37,20 @@ from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import String
 
-from .control_loop import ControlLoop, LoopSettings, schedule_process
-from .diagnostics import controller_status, EVENT_COUNTERS
-from .model_source import expand_description, missing_description_hint
-from .node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
-from .node_params import TICK_MODES
-from .parameters import check_values, declare_schema, ParameterBinder
-from .qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
-from .runner import EXECUTORS, print_help, run_node, wants_help
+from .control_loop import ControlLoop, LoopSettings
+from .diagnostics import controller_status, EVENT_COUNTERS, loop_report
 from .telemetry import ControllerOutputs, TOPIC_COMMANDS
-from ..core.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
-from ..core.params import ParameterValidationError
-from ..core.robot_model import RobotModel
-from ..core.runtime import ControllerRuntime, InputError, Mode
+from ..common.model_source import expand_description, missing_description_hint
+from ..common.node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
+from ..common.node_params import TICK_MODES
+from ..common.parameters import check_values, declare_schema, ParameterBinder
+from ..common.qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
+from ..common.runner import EXECUTORS, print_help, run_node, wants_help
+from ..common.scheduling import schedule_process
+from ...core.config.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
+from ...core.config.params import ParameterValidationError
+from ...core.model.robot_model import RobotModel
+from ...core.runtime.controller_runtime import ControllerRuntime, InputError, Mode
 
 __all__ = ['ControllerNode', 'main']
 
@@ -267,7 +267,7 @@ class ControllerNode(LifecycleNode):
         """
         Schedule the middleware's threads below the control thread, and the node's below them.
 
-        See :func:`~.control_loop.schedule_process`; a node built in another program leaves
+        See :func:`~..common.scheduling.schedule_process`; a node built in another program leaves
         that program's threads alone.
         """
         keep = () if self.loop is None or self.loop.native_id is None else (self.loop.native_id,)
@@ -343,14 +343,7 @@ class ControllerNode(LifecycleNode):
         timing: dict[str, float] = {}
         new_events: dict[str, int] = {}
         if loop is not None:
-            extra['commands_per_s'] = loop.commands.rate(time.monotonic())
-            extra.update(loop.delay.summary('delay'))
-            timing = loop.timing.summary()
-            holds = loop.holds.summary()
-            extra['loop_hold_max_ms'] = holds.pop('all_max_ms')
-            extra['loop_hold_p999_ms'] = holds.pop('all_p999_ms')
-            extra['loop_hold_max_where'] = loop.holds.where()
-            extra.update({f'hold_{k}': v for k, v in holds.items() if not k.startswith('all')})
+            timing = loop_report(loop, extra)
         if self.runtime is not None:
             counts = {k: self.runtime.counters[k] for k in EVENT_COUNTERS}
             new_events = {k: v - self._events.get(k, 0) for k, v in counts.items()}

@@ -2,14 +2,15 @@
 from __future__ import annotations
 
 import math
-from typing import Mapping
+import time
+from typing import Any, Mapping
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
-from ..core.runtime import ControllerRuntime, Mode
+from ...core.runtime.controller_runtime import ControllerRuntime, Mode
 
-__all__ = ['EVENT_COUNTERS', 'controller_status']
+__all__ = ['EVENT_COUNTERS', 'controller_status', 'loop_report']
 
 _LEVEL = {Mode.RUNNING: DiagnosticStatus.OK, Mode.WAITING: DiagnosticStatus.WARN,
           Mode.APPROACH: DiagnosticStatus.WARN, Mode.NO_SURFACE: DiagnosticStatus.ERROR,
@@ -103,9 +104,26 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
 
 
 def _recovery_values(runtime: ControllerRuntime) -> dict[str, object]:
-    """Return the fault episodes (core/recovery.py): the one under way, counts, trusted."""
+    """Return the fault episodes (core/runtime/recovery.py): the one under way, counts, trusted."""
     rec = runtime.recovery
     trusted = ', '.join(f'{v:.4g}' for v in rec.trusted) if rec.has_trusted else 'none'
     return {'episode': rec.episode or 'none', 'theta_trusted': trusted,
             'adaptation_frozen': rec.frozen, 'last_stall_ms': f'{runtime.last_stall_s * 1e3:.4g}',
             **{f'episodes_{k}': v for k, v in rec.counts.items()}}
+
+
+def loop_report(loop: Any, extra: dict[str, Any]) -> dict[str, float]:
+    """
+    Add the control thread's figures to ``extra``; return its timing summary.
+
+    ``loop`` is the :class:`~.control_loop.ControlLoop`: commands/s, the input-to-command
+    delay, and how long each callback held the thread (the longest, and where it went).
+    """
+    extra['commands_per_s'] = loop.commands.rate(time.monotonic())
+    extra.update(loop.delay.summary('delay'))
+    holds = loop.holds.summary()
+    extra['loop_hold_max_ms'] = holds.pop('all_max_ms')
+    extra['loop_hold_p999_ms'] = holds.pop('all_p999_ms')
+    extra['loop_hold_max_where'] = loop.holds.where()
+    extra.update({f'hold_{k}': v for k, v in holds.items() if not k.startswith('all')})
+    return loop.timing.summary()

@@ -17,8 +17,8 @@ from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
 import numpy as np
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
-from .cdr import RawMessage
-from .qos import COMMAND_QOS, TELEMETRY_QOS
+from ..common.cdr import RawMessage
+from ..common.qos import COMMAND_QOS, TELEMETRY_QOS
 
 __all__ = ['ControllerOutputs', 'EffortOutput', 'TOPIC_COMMANDS']
 

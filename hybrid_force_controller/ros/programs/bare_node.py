@@ -18,9 +18,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from .cdr import RawMessage, read_joint_state, read_wrench_stamped
-from .qos import COMMAND_QOS, sensor_in_qos
-from .runner import run_node
+from ..common.cdr import RawMessage, read_joint_state, read_wrench_stamped
+from ..common.qos import COMMAND_QOS, sensor_in_qos
+from ..common.runner import run_node
 
 __all__ = ['BareNode', 'TOPIC_BARE_COMMANDS', 'main']
 

@@ -9,7 +9,7 @@ each run it reports the CPU use of each process (% of one core: user + system ti
 the sim), the controller's tick period p50/p99 and input-to-command delay p50/p99/max
 (joint-state stamp to effort published, node clock), read from ``/diagnostics``, and the
 tracking over the measured window (RMS position and true-force errors, contact lost:
-ros/tracking.py) with the sim's masses ``--masses`` (default 50 % off the URDF's).
+ros/programs/tracking.py) with the sim's masses ``--masses`` (default 50 % off the URDF's).
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ import numpy as np
 from .launch import find_config, PKG
 from .load import CpuMeter
 from .tracking import TrackingMeter
-from ..tools.offline_bench import offline_figures
+from ...tools.offline_bench import offline_figures
 
 __all__ = ['main', 'ros_loop_figures', 'storm_values']
 
@@ -45,7 +45,7 @@ class _Diagnostics:
                  f_d: float = 1.0) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from .runner import make_executor
+        from ..common.runner import make_executor
         self.latest: dict[str, dict[str, str]] = {}
         self.received: dict[str, float] = {}
         self.lock = threading.Lock()
@@ -57,7 +57,7 @@ class _Diagnostics:
         from rclpy.parameter_client import AsyncParameterClient
         from std_msgs.msg import Float64MultiArray
         from .bare_node import TOPIC_BARE_COMMANDS
-        from .qos import COMMAND_QOS
+        from ..common.qos import COMMAND_QOS
         self.sim_history: list[tuple[float, dict[str, str]]] = []
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         # the bare node's commands have a subscriber, as the controller's have the sim

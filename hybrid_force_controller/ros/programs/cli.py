@@ -18,12 +18,12 @@ def interruptible(load: Callable[[], Callable[[Sequence[str] | None], int]], nam
 
 
 def _paper_main() -> Callable[[Sequence[str] | None], int]:
-    from ..tools.paper import main
+    from ...tools.paper import main
     return main
 
 
 def _report_main() -> Callable[[Sequence[str] | None], int]:
-    from ..tools.report import main
+    from ...tools.report import main
     return main
 
 

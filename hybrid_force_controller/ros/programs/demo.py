@@ -68,7 +68,7 @@ def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:
         tool = ['-p', f'tool_mass:={float(mass)!r}']  # the same name in both nodes
     out = [a for name in files for a in ('--params-file', str(find_config(name)))] + tool
     if args.arm == 'panda':
-        from ..core.arm7 import panda_urdf_path
+        from ...core.offline.arm7 import panda_urdf_path
         out += ['-p', f'robot_description:={panda_urdf_path()}']
     return out, mu, mass
 
@@ -94,7 +94,7 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
     from rclpy.parameter import Parameter
     from rclpy.task import Future
     from .recorder_node import BagRecorder
-    from .runner import make_executor
+    from ..common.runner import make_executor
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt
     rec = BagRecorder(bag, parameter_overrides=[Parameter('use_sim_time', value=lockstep)])
@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
-    from ..tools.report import main as report_main
+    from ...tools.report import main as report_main
     print('report:')
     code = report_main([str(bag), '--out', str(report_dir)])
     if code == 0:

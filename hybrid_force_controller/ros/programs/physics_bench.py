@@ -1,12 +1,13 @@
 """
-``python -m hybrid_force_controller.ros.physics_bench``: the sim's physics side by side, as JSON.
+``python -m hybrid_force_controller.ros.programs.physics_bench``: the sim's physics side by side.
 
-Runs the same closed loop (sim + controller, real time, 1 kHz, the config files of ``demo``)
-once per ``--physics`` at the same time, each in its own ROS domain (base ``ROS_DOMAIN_ID``, +1,
-...), so every physics sees the same machine load. Over the same ``--duration`` s window (after
-``--settle`` s) it reports per loop the CPU use of the sim and the controller (% of one core,
-``/proc/<pid>/stat``) and the tracking (ros/tracking.py: RMS tangential position and true-force
-errors, contact lost), and the contact lost over the whole run after the first touch.
+It prints JSON. It runs the same closed loop (sim + controller, real time, 1 kHz, the config
+files of ``demo``) once per ``--physics`` at the same time, each in its own ROS domain (base
+``ROS_DOMAIN_ID``, +1, ...), so every physics sees the same machine load. Over the same
+``--duration`` s window (after ``--settle`` s) it reports per loop the CPU use of the sim and the
+controller (% of one core, ``/proc/<pid>/stat``) and the tracking (ros/programs/tracking.py: RMS
+tangential position and true-force errors, contact lost), and the contact lost over the whole run
+after the first touch.
 """
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ class _Meter:
         import rclpy
         import numpy as np
         from rclpy.signals import SignalHandlerOptions
-        from .runner import make_executor
+        from ..common.runner import make_executor
         from .tracking import TrackingMeter
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain,
@@ -62,7 +63,7 @@ class _Meter:
 
     def first_touch(self) -> float:
         """Return the stamp of the first force sample in contact, s (inf: none)."""
-        from ..core.contact import in_contact
+        from ...core.runtime.contact import in_contact
         with self.meter.lock:
             return next((t for t, f in self.meter.f if in_contact(f)), float('inf'))
 

@@ -5,7 +5,7 @@ Subscribes without deserializing (``raw=True``) and stamps every message with th
 clock at reception (sim time when ``use_sim_time`` is set), like ``ros2 bag record``.
 Topic names are relative (except ``/diagnostics``), so the recorder follows the namespace
 (``-r __ns:=/arm1`` records ``/arm1/joint_states`` ...); the bag stores the resolved names.
-``python -m hybrid_force_controller.ros.recorder_node BAG [--ros-args ...]`` records until
+``python -m hybrid_force_controller.ros.programs.recorder_node BAG [--ros-args ...]`` records until
 SIGINT/SIGTERM, then closes the bag.
 """
 from __future__ import annotations
@@ -19,8 +19,8 @@ from typing import Sequence
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from .runner import run_node, wants_help
-from ..tools.bag_io import BagWriter, RECORD_TOPICS
+from ..common.runner import run_node, wants_help
+from ...tools.bag_io import BagWriter, RECORD_TOPICS
 
 __all__ = ['BagRecorder', 'main', 'message_class', 'relative']
 
@@ -108,7 +108,7 @@ def main(args: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if args is None else args)
     head = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if wants_help(argv) or len(head) != 1:
-        print('usage: python -m hybrid_force_controller.ros.recorder_node BAG_DIR '
+        print('usage: python -m hybrid_force_controller.ros.programs.recorder_node BAG_DIR '
               '[--ros-args ...]\nRecords the controller, sim and diagnostics topics to a new '
               'MCAP bag until SIGINT/SIGTERM.')
         return 0 if wants_help(argv) else 2

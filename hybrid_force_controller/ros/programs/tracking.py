@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.contact import in_contact
-from ..tools.recovery_figures import recovery_figures, theta_steady
+from ...core.runtime.contact import in_contact
+from ...tools.recovery_figures import recovery_figures, theta_steady
 
 __all__ = ['TrackingMeter']
 

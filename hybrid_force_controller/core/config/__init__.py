@@ -1,0 +1,1 @@
+"""The one parameter schema, its validation and the frozen parameter sets (pure numpy)."""

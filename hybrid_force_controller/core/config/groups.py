@@ -1,0 +1,146 @@
+"""
+The frozen settings of the stiffness estimate and of the recovery from stalls (pure Python).
+
+They are groups of the one schema (schema.py, groups ``stiffness`` and ``recovery``), built by
+params.py; the estimator (law/stiffness.py) and the episodes (runtime/recovery.py) take them.
+Each validates itself and raises its typed error naming the field.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+import math
+
+__all__ = ['RecoveryConfig', 'RecoveryConfigError', 'StiffnessConfig', 'StiffnessConfigError',
+           'StiffnessError']
+
+
+class StiffnessError(ValueError):
+    """The estimator was called with an argument it cannot use (e.g. ``dt <= 0``)."""
+
+
+class StiffnessConfigError(StiffnessError):
+    """A stiffness-estimator setting is rejected; the message names it and says why."""
+
+
+_POSITIVE = ('k_min', 'k_max', 'k_s0', 'time_constant', 'excitation_window', 'valid_tol',
+             'k_s_rate_down', 'k_s_rate_up', 'regularisation', 'force_floor')
+_NON_NEGATIVE = ('k_hat0', 'excitation', 'k_s_time_constant', 'change_force',
+                 'force_filter_hz')
+
+
+@dataclass(frozen=True)
+class StiffnessConfig:
+    """
+    Validated settings of :class:`StiffnessEstimator`.
+
+    Symbols of the module docstring; the schema names are in ``params.py``, group ``stiffness``.
+
+    Attributes
+    ----------
+    enabled : the law uses k_s from (S7) (False: the configured ``k_s0``; the estimate
+        still runs and is reported).
+    k_min, k_max : bounds of k_hat, N/m (``0 < k_min < k_max``).
+    k_s0 : the configured k_s of eq. (11), N/m: the design stiffness of lambda2.
+    k_hat0 : prior of k_hat and first k_s command, N/m; 0 means ``k_s0`` (clipped to the
+        bounds), see :attr:`prior`.
+    time_constant : T_f of (S3), s; at least 20 control periods, else (S6) never holds.
+    excitation, excitation_window : delta_f (N) and T_e (s) of (S5).
+    valid_tol : tol of (S6).
+    k_s_time_constant : T_s of (S7), s (0: no lag, rate limits only).
+    k_s_rate_down, k_s_rate_up : rate limits of (S7), 1/s.
+    k_max_margin : margin of (S8).
+    change_force : delta_c of (S9), N (0: no change test).
+    regularisation : rho of (S3)-(S4); force_floor : sigma floor of (S6), N.
+    force_filter_hz : cut-off of the caller's force filter, Hz (0: none), for (S0).
+
+    """
+
+    enabled: bool = True
+    k_min: float = 50.0
+    k_max: float = 6000.0
+    k_s0: float = 6000.0
+    k_hat0: float = 0.0
+    time_constant: float = 2.0
+    excitation: float = 0.05
+    excitation_window: float = 0.2
+    valid_tol: float = 0.05
+    k_s_time_constant: float = 0.1
+    k_s_rate_down: float = 10.0
+    k_s_rate_up: float = 20.0
+    k_max_margin: float = 0.2
+    change_force: float = 0.2
+    regularisation: float = 1e-2
+    force_floor: float = 0.01
+    force_filter_hz: float = 200.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, bool):
+            raise StiffnessConfigError(f'enabled must be a bool, got {self.enabled!r}')
+        for f in fields(self)[1:]:
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise StiffnessConfigError(f'{f.name} must be a number, got {value!r}')
+            if not math.isfinite(value):
+                raise StiffnessConfigError(f'{f.name} must be finite, got {value}')
+            object.__setattr__(self, f.name, float(value))
+        for name in _POSITIVE:
+            if not getattr(self, name) > 0.0:
+                raise StiffnessConfigError(f'{name} must be > 0, got {getattr(self, name):g}')
+        for name in _NON_NEGATIVE:
+            if getattr(self, name) < 0.0:
+                raise StiffnessConfigError(f'{name} must be >= 0, got {getattr(self, name):g}')
+        if not self.k_min < self.k_max:
+            raise StiffnessConfigError(
+                f'need k_min < k_max, got k_min = {self.k_min:g}, k_max = {self.k_max:g}')
+        if self.k_hat0 != 0.0 and not self.k_min <= self.k_hat0 <= self.k_max:
+            raise StiffnessConfigError(f'k_hat0 = {self.k_hat0:g} is outside '
+                                       f'[k_min, k_max] = [{self.k_min:g}, {self.k_max:g}]')
+        if not 0.0 <= self.k_max_margin < 1.0 or not self.valid_tol < 1.0:
+            raise StiffnessConfigError('k_max_margin must be in [0, 1) and valid_tol in (0, 1)')
+
+    @property
+    def prior(self) -> float:
+        """Return the prior of k_hat, N/m: ``k_hat0``, or ``k_s0`` clipped to the bounds if 0."""
+        return self.k_hat0 or min(max(self.k_s0, self.k_min), self.k_max)
+
+
+class RecoveryConfigError(ValueError):
+    """An inconsistent recovery configuration."""
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """
+    The ``recovery`` group of the schema (module docstring).
+
+    Attributes
+    ----------
+    enabled : episodes freeze adaptation at the trusted estimate (false: only counted).
+    stall_periods : a gap between ticks longer than this many periods is a stall.
+    calm_time : calm this long ends an episode and makes theta_hat trusted, s.
+    calm_force : calm force error, N.
+    calm_error : calm tracking error ``|e|``, m/s.
+    transient_force : a force error above this starts an episode, N (0: off).
+    transient_error : a tracking error above this starts an episode, m/s (0: off).
+
+    """
+
+    enabled: bool = True
+    stall_periods: float = 10.0
+    calm_time: float = 0.5
+    calm_force: float = 0.2
+    calm_error: float = 0.02
+    transient_force: float = 3.0
+    transient_error: float = 0.25
+
+    def __post_init__(self) -> None:
+        values = (self.stall_periods, self.calm_time, self.calm_force, self.calm_error,
+                  self.transient_force, self.transient_error)
+        if not all(math.isfinite(v) and v >= 0.0 for v in values):
+            raise RecoveryConfigError(f'recovery settings must be finite and >= 0: {self}')
+        if self.stall_periods < 2.0:
+            raise RecoveryConfigError('stall_periods must be >= 2 (a late tick is no stall)')
+        for calm, transient, name in ((self.calm_force, self.transient_force, 'force'),
+                                      (self.calm_error, self.transient_error, 'error')):
+            if transient > 0.0 and not calm < transient:
+                raise RecoveryConfigError(f'calm_{name} must be below transient_{name}')

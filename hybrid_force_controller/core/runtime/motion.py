@@ -1,0 +1,97 @@
+"""
+What the tool is asked to do: the reference along the surface, the approach along n (pure numpy).
+
+:class:`Motion` is the runtime's motion side. The modes (controller_runtime.py) decide *when*
+the tool approaches, presses or starts again from where it is; this says *what* it tracks:
+
+* along the surface, the reference of a run (law/reference.py ``BlendedReference``: the sine,
+  or a held point, blended smoothly on every change);
+* along n, out of contact, the approach (law/approach.py), and at contact the bumpless
+  hand-over of what the approach demanded of r into the force loop.
+
+It keeps the last tick's normal part of r and rdot (``r_n``, ``rdot_n``): an approach starts
+with the velocity the tool had, and the hand-over fades the gap to the force loop's. Times are
+the run's (``tau``, s since its start) or the joint-state stamps (``t``); nothing reads a clock.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..config.params import ControllerParams
+from ..law.approach import Approach, Handover
+from ..law.control_law import ApproachRef
+from ..law.reference import BlendedReference, Reference, SineReference
+
+__all__ = ['Motion', 'reference_changed']
+
+_REFERENCE_FIELDS = ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time')
+
+
+def sine_of(params: ControllerParams) -> SineReference:
+    """Return the sine reference of a parameter set (``ref_center``, ``ref_amplitude``, ...)."""
+    rt = params.runtime
+    return SineReference(rt.ref_center, rt.ref_amplitude, rt.ref_omega)
+
+
+def reference_changed(old: ControllerParams, new: ControllerParams) -> bool:
+    """Say whether a new set changes the reference (a ``ref_*`` parameter or ``n``)."""
+    return (any(not np.array_equal(getattr(new.runtime, k), getattr(old.runtime, k))
+                for k in _REFERENCE_FIELDS) or not np.array_equal(new.law.n, old.law.n))
+
+
+class Motion:
+    """The reference along the surface and the approach along n of one runtime."""
+
+    def __init__(self, params: ControllerParams, task_index: np.ndarray) -> None:
+        self.task_index = task_index
+        self.ref = BlendedReference(sine_of(params), params.law.n, params.runtime.ref_blend_time)
+        self.approach = Approach(0.0, 0.0)
+        self.handover = Handover()
+        self.r_n = self.rdot_n = 0.0  # the last tick's normal r (m/s) and rdot term (m/s^2)
+        self.configure(params)
+
+    def configure(self, params: ControllerParams) -> None:
+        """Install a validated set's approach and normal (the reference: :meth:`replan`)."""
+        rt = params.runtime
+        self.n_W = params.law.n
+        self.n_task = params.law.n[self.task_index]
+        self.approach.configure(rt.approach_speed, rt.approach_limit)
+
+    def replan(self, params: ControllerParams, tau: float) -> None:
+        """Take a new reference (``ref_*``, ``n``): release a held point, blend from here."""
+        self.ref.switch(tau, sine=sine_of(params), release=True, n_W=params.law.n,
+                        t_blend=params.runtime.ref_blend_time)
+
+    def hold(self, tau: float, x_W: np.ndarray) -> None:
+        """Hold the point ``x_W`` (base frame) from ``tau`` on, blended in."""
+        self.ref.switch(tau, x_hold_W=x_W)
+
+    def __call__(self, tau: float) -> Reference:
+        """Return the reference along the surface at ``tau``."""
+        return self.ref(tau)
+
+    def start_from(self, tau: float, p_W: np.ndarray, pdot_W: np.ndarray) -> None:
+        """Blend the reference from the tool's position and velocity (an approach goes on)."""
+        self.ref.start_from(tau, p_W, pdot_W)
+        self.r_n = float(self.n_W @ pdot_W)
+
+    @property
+    def can_approach(self) -> bool:
+        """Say whether an approach is configured (``approach_speed`` > 0)."""
+        return self.approach.speed > 0.0
+
+    def enter_approach(self, x_task: np.ndarray) -> None:
+        """Begin an approach from the tool's task position, with its normal velocity."""
+        self.approach.start(float(self.n_task @ x_task), self.r_n)
+
+    def approach_step(self, dt: float, x_task: np.ndarray) -> ApproachRef:
+        """Advance the approach ``dt`` seconds with the tool at ``x_task``; what the law tracks."""
+        return self.approach.step(dt, float(self.n_task @ x_task))
+
+    def start_handover(self, t: float, r_f: float, rdot_f: float) -> None:
+        """Contact found at ``t``: fade the approach's normal r, rdot into the force loop's."""
+        self.handover.start(t, self.r_n - r_f, self.rdot_n - rdot_f)
+
+    def handover_bias(self, t: float) -> tuple[float, float]:
+        """Return the approach's part of r and rdot along n still fading at ``t``."""
+        return self.handover.bias(t)

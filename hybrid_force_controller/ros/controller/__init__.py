@@ -1,0 +1,1 @@
+"""The controller node and its real-time path: the control thread, telemetry, diagnostics."""

@@ -1,0 +1,1 @@
+"""Programs around the nodes: demo, bench, physics bench, recorder, trackers, load, CLI."""

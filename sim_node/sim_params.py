@@ -1,0 +1,56 @@
+"""
+The sim node's parameters: one schema (declared with descriptors, validated at the boundary).
+
+:data:`SIM_SCHEMA` lists the plant's, the surface's (settable at run time: :data:`SURFACE`),
+the sensor's, MuJoCo's (mujoco_params.py) and the node's own scheduling parameters.
+"""
+from __future__ import annotations
+
+from hybrid_force_controller.core.config.params import ParamSpec as _S
+from hybrid_force_controller.ros.common.node_params import (CPU_AFFINITY_SPEC, EXECUTOR_SPEC,
+                                                            THREAD_PRIORITY_SPEC)
+
+from .mujoco_params import MUJOCO_SCHEMA
+
+__all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE']
+
+SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
+           'sensor_frozen')
+SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
+    ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
+    ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
+    ('stiffness', 'double', 1700.0, 'Surface stiffness k, N/m.', 1e-6, 1e9, {}),
+    ('surface_point', 'double_array', [],
+     'Point of the undeformed surface, base frame, m ([] = tool start: touching, 0 N).', {}),
+    ('surface_normal', 'double_array', [0.0, -1.0, 0.0], 'Surface normal (into it), base.', {}),
+    ('surface_enabled', 'bool', True, 'false: no surface (free motion, e.g. contact loss).', {}),
+    ('sensor_frozen', 'bool', False, 'true: the F/T sensor repeats its last reading (a frozen '
+     'sensor, for fault injection).', {}),
+    ('masses', 'double_array', [], 'True link masses, kg ([] = URDF).', {}),
+    ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
+    ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
+    ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
+    ('substeps', 'integer', 2, 'Integration sub-steps per step (the offline scenarios use 2).',
+     1, 1000, {}),
+    ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
+     '(sim time in lockstep).', 1e-6, 60.0, {}),
+    ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
+    ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
+     'integrates (older time is dropped and counted).', 1, 100000, {}),
+    ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
+     0.0, 1e5, {}),
+)) + MUJOCO_SCHEMA + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
+
+
+HELP_PARAMETERS = (
+    ('lockstep', 'true: own /clock and step once per command (deterministic)'),
+    ('physics', "'paper' (default) or 'mujoco' (tool_*, surface_damping/friction, joint_*)"),
+    ('rate_hz', 'plant step rate (default 1000)'),
+    ('masses', "true link masses, kg ([] = the URDF's)"),
+    ('stiffness, surface_*', 'the elastic surface (settable at run time)'),
+    ('sensor_frozen', 'true: the F/T sensor repeats its last reading (settable)'),
+    ('noise_sigma, seed', 'force sensor noise'),
+    ('command_timeout', 'zero effort after this long without a command'),
+    ('max_catch_up', 'most periods a late timer callback integrates'),
+    ('robot_description', "URDF XML, .urdf or .xacro path ('': the paper's 2-link arm)"),
+)

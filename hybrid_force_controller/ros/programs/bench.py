@@ -213,14 +213,15 @@ def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
     pin = ['taskset', '-c', '0'] if cfg['one_core'] else []
     procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args, *cfg['sim_args']], env,
                           log_dir, pin)
-    procs['controller'] = _start('controller', [f'{PKG}.ros.controller_node', *ros_args], env,
-                                 log_dir, pin)
-    procs['bare'] = _start('bare', [f'{PKG}.ros.bare_node'], env, log_dir)
+    ctrl = [f'{PKG}.ros.controller.controller_node', *ros_args]
+    procs['controller'] = _start('controller', ctrl, env, log_dir, pin)
+    procs['bare'] = _start('bare', [f'{PKG}.ros.programs.bare_node'], env, log_dir)
     if cfg['load_duty'] > 0.0:
         bag = log_dir / f'bag_{time.monotonic_ns()}'
-        procs['recorder'] = _start('recorder', [f'{PKG}.ros.recorder_node', str(bag)], env,
-                                   log_dir)
-        procs['load'] = _start('load', [f'{PKG}.ros.load', '--duty', str(cfg['load_duty'])],
+        procs['recorder'] = _start('recorder', [f'{PKG}.ros.programs.recorder_node', str(bag)],
+                                   env, log_dir)
+        procs['load'] = _start('load', [f'{PKG}.ros.programs.load', '--duty',
+                                        str(cfg['load_duty'])],
                                env, log_dir)
 
 

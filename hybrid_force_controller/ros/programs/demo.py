@@ -79,7 +79,7 @@ def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, 
     common = ['--ros-args', *ros_args]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
            '-p', f'lockstep:={str(lockstep).lower()}', '-p', f'surface_friction:={mu!r}']
-    ctrl = [sys.executable, '-m', f'{PKG}.ros.controller_node', *common,
+    ctrl = [sys.executable, '-m', f'{PKG}.ros.controller.controller_node', *common,
             '-p', f'use_sim_time:={str(lockstep).lower()}']
     procs = []
     for name, cmd in (('sim', sim), ('controller', ctrl)):

@@ -36,7 +36,7 @@ def _loop(physics: str, arm: str, friction: float | None, domain: int,
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     procs = {}
     for name, module, extra in (('sim', 'sim_node.sim_node', ['-p', f'surface_friction:={mu!r}']),
-                                ('controller', f'{PKG}.ros.controller_node', [])):
+                                ('controller', f'{PKG}.ros.controller.controller_node', [])):
         with open(log_dir / f'{physics}_{name}.log', 'wb') as log:
             procs[name] = subprocess.Popen(
                 [sys.executable, '-m', module, '--ros-args', *ros_args, *extra], env=env,

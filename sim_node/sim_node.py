@@ -71,6 +71,16 @@ __all__ = ['SIM_SCHEMA', 'SimNode', 'held_periods', 'main']
 WATCHDOG_S = 0.2
 
 
+def _sensor_offset(value: Any) -> np.ndarray | None:
+    """Return ``sensor_offset`` as a finite 3-vector (None: [] or zero), or raise SurfaceError."""
+    offset = np.asarray(value if value else [], dtype=float)
+    if offset.size == 0:
+        return None
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise SurfaceError(f'sensor_offset must be [] or 3 finite numbers, got {list(value)}')
+    return offset if np.any(offset) else None
+
+
 def held_periods(t_begin: float, periods: int, dt: float, t_cmd: float, timeout: float) -> int:
     """
     Count the periods, of ``periods`` from ``t_begin``, that end within ``timeout`` of ``t_cmd``.
@@ -102,7 +112,7 @@ class SimNode(Node):
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
         self.p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
         self.touch_offset = touch_offset(v)  # the tool's radius on MuJoCo, else 0
-        surface, self.sensor_frozen = self._surface(v)
+        surface, (self.sensor_frozen, self.sensor_offset) = self._surface(v)
         self.sim = make_plant(v, model, urdf, surface, q0)
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],
                                       self._surface, self._set_surface, unit=('surface_normal',))
@@ -178,11 +188,12 @@ class SimNode(Node):
         self.timer = self.create_timer(period, self._guarded('timer', tick), clock=steady)
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
 
-    def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None, bool]:
+    def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None, tuple]:
         """
-        Build the surface the values describe (None when disabled) and the frozen flag.
+        Build the surface the values describe (None when disabled) and the sensor's faults.
 
-        The flag is the sensor's (``sensor_frozen``); SurfaceError when a value is bad.
+        They are ``sensor_frozen`` and ``sensor_offset`` (a 3-vector, N, or None for none);
+        SurfaceError when a value is bad.
         """
         if not isinstance(v['stiffness'], float) or not all(
                 isinstance(v[k], bool) for k in ('surface_enabled', 'sensor_frozen')):
@@ -196,11 +207,13 @@ class SimNode(Node):
         check = getattr(getattr(self, 'sim', None), 'check_surface', None)  # MuJoCo's limits
         if check is not None:
             check(surface)
-        return (surface if v['surface_enabled'] else None), v['sensor_frozen']
+        return (surface if v['surface_enabled'] else None), (v['sensor_frozen'],
+                                                             _sensor_offset(v['sensor_offset']))
 
-    def _set_surface(self, values: tuple[ElasticSurface | None, bool]) -> None:
+    def _set_surface(self, values: tuple[ElasticSurface | None, tuple]) -> None:
         """Swap the surface in; the contact torque measure() cached for the old one is dropped."""
-        (self.sim.surface, self.sensor_frozen), self.sim._tau_c = values, None
+        self.sim.surface, (self.sensor_frozen, self.sensor_offset) = values
+        self.sim._tau_c = None
 
     def _guarded(self, name: str, callback: Callable) -> Callable:
         """Wrap a callback: exceptions are counted and logged (throttled), never raised."""
@@ -312,6 +325,8 @@ class SimNode(Node):
             np.take(src, self.to_msg, out=dst)  # into the message's bytes, no copy between
         if not self.sensor_frozen:  # frozen: the reused message repeats its last reading
             ft.arrays[0][:] = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
+            if self.sensor_offset is not None:  # a biased sensor
+                ft.arrays[0][:] += self.sensor_offset
             torque = getattr(self.sim, 'torque_S', None)  # MuJoCo's wrist torque sensor
             if torque is not None:
                 ft.arrays[1][:] = torque

@@ -15,7 +15,7 @@ from .mujoco_params import MUJOCO_SCHEMA
 __all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE']
 
 SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
-           'sensor_frozen')
+           'sensor_frozen', 'sensor_offset')
 SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
     ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
@@ -26,6 +26,8 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('surface_enabled', 'bool', True, 'false: no surface (free motion, e.g. contact loss).', {}),
     ('sensor_frozen', 'bool', False, 'true: the F/T sensor repeats its last reading (a frozen '
      'sensor, for fault injection).', {}),
+    ('sensor_offset', 'double_array', [], "The F/T sensor's bias, N, sensor frame: added to "
+     'every force reading, as a real sensor drifts ([] = none; the controller tares it).', {}),
     ('masses', 'double_array', [], 'True link masses, kg ([] = URDF).', {}),
     ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
     ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
@@ -49,6 +51,7 @@ HELP_PARAMETERS = (
     ('masses', "true link masses, kg ([] = the URDF's)"),
     ('stiffness, surface_*', 'the elastic surface (settable at run time)'),
     ('sensor_frozen', 'true: the F/T sensor repeats its last reading (settable)'),
+    ('sensor_offset', "the F/T sensor's bias, N, sensor frame (settable)"),
     ('noise_sigma, seed', 'force sensor noise'),
     ('command_timeout', 'zero effort after this long without a command'),
     ('max_catch_up', 'most periods a late timer callback integrates'),

@@ -7,6 +7,8 @@ domain of their own set ROS_DOMAIN_ID themselves (or pass domain_id to rclpy.ini
 import os
 import signal
 
+import pytest
+
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 # A shell without job control (a script's `cmd &`) starts the suite with SIGINT ignored, and an
@@ -18,3 +20,26 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
 
 import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any test module loads)
+
+
+# The suite runs on two workers (README: ``-n 2 --dist loadgroup``). Modules that start nodes,
+# talk DDS or time a real-time loop run one after the other on one worker, as the group 'ros'
+# (first, since it is the longest); the offline modules below share the other worker. A module
+# not listed here is serial by default: a new real-time test never runs beside another one.
+OFFLINE_MODULES = {
+    'test_analysis', 'test_cdr', 'test_closed_loop_offline', 'test_control_law', 'test_engine',
+    'test_filters_env', 'test_flake8', 'test_layers', 'test_loop_stats', 'test_margin',
+    'test_model_oracle', 'test_mujoco_demo_args', 'test_mujoco_plant', 'test_params',
+    'test_pep257', 'test_recovery', 'test_report', 'test_runtime', 'test_runtime_changes',
+    'test_stalls', 'test_stiffness', 'test_stiffness_closed_loop', 'test_stiffness_loop',
+    'test_stiffness_tools', 'test_tool_gravity',
+}
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's worker adds the group to the node ids
+def pytest_collection_modifyitems(config, items):
+    """Put every test of a module that is not offline into the serial group 'ros', first."""
+    for item in items:
+        if item.module.__name__ not in OFFLINE_MODULES:
+            item.add_marker(pytest.mark.xdist_group('ros'))
+    items.sort(key=lambda item: item.module.__name__ in OFFLINE_MODULES)  # stable

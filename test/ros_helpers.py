@@ -186,10 +186,10 @@ class Spun:
         self.executor.add_node(node)
         return node
 
-    def node(self, name: str) -> Any:
-        """Create a plain node in this context, spun."""
+    def node(self, name: str, namespace: str = '') -> Any:
+        """Create a plain node in this context (in ``namespace``), spun."""
         import rclpy
-        return self.add(rclpy.create_node(name, context=self.context))
+        return self.add(rclpy.create_node(name, context=self.context, namespace=namespace))
 
     def close(self) -> None:
         """

@@ -80,6 +80,9 @@ class RuntimeConfig:
     reject_frozen_wrench: bool
     tool_mass: float
     tool_com: np.ndarray
+    wrench_offset: np.ndarray
+    tare_time: float
+    f_d_rate: float
 
 
 @dataclass(frozen=True)
@@ -252,7 +255,9 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
         approach_limit=s['approach_limit'],
         wrench_limit=s['wrench_limit'], wrench_rate_limit=s['wrench_rate_limit'],
         reject_frozen_wrench=s['reject_frozen_wrench'], tool_mass=s['tool_mass'],
-        tool_com=_array('tool_com', v['tool_com'], (0, 3)).reshape(-1, 3).sum(0))  # []: 0
+        tool_com=_array('tool_com', v['tool_com'], (0, 3)).reshape(-1, 3).sum(0),  # []: 0
+        wrench_offset=_array('wrench_offset', v['wrench_offset'], (0, 3)).reshape(-1, 3).sum(0),
+        tare_time=s['tare_time'], f_d_rate=s['f_d_rate'])
 
 
 def build_params(model: Any, values: Mapping[str, Any] | None = None) -> ControllerParams:

@@ -128,6 +128,14 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('tool_com', 'double_array', [],
        "The tool's centre of mass in the sensor frame, m (empty: the origin); it moves only "
        'the torque of the weight, which the law does not use.'),
+    _S('wrench_offset', 'double_array', [],
+       "The force sensor's bias, N, sensor frame: subtracted from every reading (empty: "
+       'none). ~/tare measures and sets it; ros2 param dump keeps it.'),
+    _S('tare_time', 'double', 1.0,
+       '~/tare averages the force reading over this long, s.', 0.0, 10.0, positive=True),
+    _S('f_d_rate', 'double', 10.0,
+       'A new f_d (parameter or ~/target_wrench) is approached at this rate, N/s, with its '
+       'rate fed forward (0: a step).', 0.0, 1e6),
     # the online stiffness estimate (stiffness.py, docs/design.md): symbols (S0)-(S8)
     _stf('stiffness_estimation', 'bool', True,
          'Use the online stiffness estimate as k_s of eq. (11), with lambda2 = lambda2 '

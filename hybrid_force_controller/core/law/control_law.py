@@ -187,6 +187,7 @@ class HybridForceController:
 
         A k_s set by ``set_k_s`` stays in use (lambda2 follows the new gains' lambda2_0, k_s0).
         """
+        self.f_d, self.fdot_d = gains.f_d, 0.0  # the desired force, N, and its rate, N/s
         ax = list(self.model.task_axes)
         n = gains.n[ax]
         if self._d is not None and not np.array_equal(gains.n, self._d.gains.n):
@@ -277,20 +278,34 @@ class HybridForceController:
         z[-2], z[-1] = r_n, rdot_n
         r_rdot = d.G.dot(z)
         m = len(n)
-        return r_rdot[:m], r_rdot[m:], f_n - g.f_d, r_n, rdot_n
+        return r_rdot[:m], r_rdot[m:], f_n - self.f_d, r_n, rdot_n
 
     def force_loop_r_n(self, f_n: float) -> tuple[float, float]:
         """
         Return the normal part of r in the force loop and the mode-specific part of rdot's.
 
-        The normal part of r is ``-(c lambda1 (f_n - f_d) + lambda2 h)``, the mode-specific part
-        of rdot's ``(c_rate lambda1 - lambda2) (f_n - f_d)`` (``c_rate``: the rate of change of
-        the compliance, set_k_s).
+        The normal part of r is ``c fdot_d - (c lambda1 (f_n - f_d) + lambda2 h)``, the
+        mode-specific part of rdot's ``lambda1 c fdot_d + (c_rate lambda1 - lambda2) (f_n - f_d)``
+        (``c_rate``: the rate of change of the compliance, set_k_s; ``fdot_d``: a ramped f_d,
+        set_force_setpoint).
         """
         g, k = self._d.gains, self._k
-        df_n = f_n - g.f_d
+        df_n = f_n - self.f_d
         r_n = -(k.c * g.lambda1 * df_n + k.lambda2 * self.h)
-        return r_n, (k.c_rate * g.lambda1 - k.lambda2) * df_n
+        rdot_n = (k.c_rate * g.lambda1 - k.lambda2) * df_n
+        if self.fdot_d:  # a ramp of f_d: its rate enters (11) (never with a constant f_d)
+            r_n += k.c * self.fdot_d
+            rdot_n += g.lambda1 * k.c * self.fdot_d
+        return r_n, rdot_n
+
+    def set_force_setpoint(self, f_d: float, fdot_d: float = 0.0) -> None:
+        """
+        Use ``f_d`` (N) and its rate ``fdot_d`` (N/s) from the next step on, O(1).
+
+        The runtime ramps f_d (law/force_reference.py); ``set_gains`` sets the gains' f_d
+        and rate 0.
+        """
+        self.f_d, self.fdot_d = f_d, fdot_d
 
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,

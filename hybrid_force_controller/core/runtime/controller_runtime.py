@@ -40,9 +40,11 @@ from .modes import Mode, TickOutput
 from .motion import Motion, reference_changed
 from .recovery import Recovery
 from .run_clock import RunClock
+from .tare import Tare
 from ..config.params import ControllerParams
 from ..law.bumpless import RestartBlend
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
+from ..law.force_reference import ForceRamp
 from ..law.set_validation import SetValidator
 from ..law.stiffness_loop import StiffnessLoop, StiffnessStatus
 from ..model.robot_model import ModelError, RobotModel
@@ -70,6 +72,7 @@ class ControllerRuntime:
         self._limiter = EffortLimiter(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
         self._motion = Motion(params, model.task_index)
+        self._f_d = ForceRamp(params.law.f_d, params.runtime.f_d_rate)
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self.validator = SetValidator(model)
@@ -128,7 +131,9 @@ class ControllerRuntime:
         self._motion.configure(params)
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
-        self.f_d_W = params.law.f_d * params.law.n
+        self._f_d.configure(params.law.f_d, rt.f_d_rate)  # a new f_d is ramped to
+        self.ctrl.set_force_setpoint(self._f_d.value, self._f_d.fdot)
+        self.f_d_W = self._f_d.value * params.law.n
 
     # ------------------------------------------------------------------ inputs
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
@@ -141,6 +146,17 @@ class ControllerRuntime:
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
         self._in.on_wrench(frame_id, force, t)
+
+    def start_tare(self, tare: Tare) -> None:
+        """
+        Begin averaging the raw force reading (tare.py): the sensor's bias, for ``wrench_offset``.
+
+        Aborted at once, saying why, in contact, while the arm moves or before any input.
+        """
+        if self._contact.active:
+            tare.abort('in contact: tare with the tool still and off the surface')
+        else:
+            self._in.start_tare(tare)
 
     @property
     def last_fault(self) -> str:
@@ -207,8 +223,12 @@ class ControllerRuntime:
         if stale:
             return self._safe(f_W, stale, t)
         dt_state, dt_int = self._state_step(stalled or self._restarted)
+        if self._f_d.value != self._f_d.target:
+            self._ramp_f_d(dt_state)
         f_n = float(self._params.law.n.dot(f_W))
-        touching = self._contact.update(f_n, self._params.law.f_d, self._in.state.t)
+        touching = self._contact.update(f_n, self.ctrl.f_d, self._in.state.t)
+        if touching and self._in.tare is not None:
+            self._in.tare.abort('the tool touched the surface during the tare')
         if self.mode in (Mode.WAITING, Mode.SAFE):
             if self._restarted:
                 self._restarted = False
@@ -225,7 +245,7 @@ class ControllerRuntime:
         ref = self._motion(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
-                                 in_contact=in_contact(f_n, self._params.law.f_d),
+                                 in_contact=in_contact(f_n, self.ctrl.f_d),
                                  approach=approach, r_bias=self._handover_bias(),
                                  kin=self._in.kin(), adapt=not self.recovery.frozen)
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
@@ -238,6 +258,12 @@ class ControllerRuntime:
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref.x_d_W, f_W)
+
+    def _ramp_f_d(self, dt: float) -> None:
+        """Move f_d toward a new target (law/force_reference.py); the law feeds its rate."""
+        f_d = self._f_d.step(dt)
+        self.ctrl.set_force_setpoint(f_d, self._f_d.fdot)
+        self.f_d_W = f_d * self._params.law.n
 
     def _state_step(self, gap: bool) -> tuple[float, float]:
         """Return the time since the last integrated state and the part to integrate (RunClock)."""
@@ -336,7 +362,7 @@ class ControllerRuntime:
 
     def _observe(self, t: float, f_n: float, e: np.ndarray, touching: bool) -> None:
         """Note this tick's errors: calm stretches, and the next tick's episode triggers."""
-        self.recovery.note(t, abs(f_n - self._params.law.f_d), math.sqrt(e.dot(e)),
+        self.recovery.note(t, abs(f_n - self.ctrl.f_d), math.sqrt(e.dot(e)),
                            touching and self.mode == Mode.RUNNING, self.ctrl.theta_hat)
 
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:

@@ -4,7 +4,9 @@ The runtime's latest inputs: checked samples, their staleness, the filtered forc
 :class:`LatestInputs` keeps the newest joint state and wrench that passed the checks of
 inputs.py, computes the kinematics once per joint state, rotates each new wrench into the base
 frame (less the tool's weight, ``tool_mass``: tool_gravity.py) and low-pass filters it over the
-wrench stamps, and says when the inputs are too old to act on. Rejected samples are counted in
+wrench stamps, and says when the inputs are too old to act on. Every reading first loses the
+sensor's bias (``wrench_offset``, sensor frame), which a tare (tare.py) measures from the raw
+readings. Rejected samples are counted in
 the caller's counters and raise the typed error. Times are seconds on the caller's clock.
 """
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from .filters import LowPassFilter
 from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
                      WrenchSample)
+from .tare import still, Tare
 from ..config.params import RuntimeConfig
 from ..model.robot_model import RobotModel, TaskKinematics
 from ..model.tool_gravity import tool_weight_W
@@ -37,6 +40,7 @@ class LatestInputs:
         self._kin_of: JointSample | None = None  # the state _kin_cached belongs to
         self._kin_cached: TaskKinematics | None = None
         self._wrench_prev_t, self._new_wrench = -math.inf, False
+        self.tare: Tare | None = None  # a tare under way (it takes the raw readings)
         self.configure(rt)
 
     def configure(self, rt: RuntimeConfig) -> None:
@@ -48,6 +52,8 @@ class LatestInputs:
         R_W_root = self.model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[1]
         g_W = R_W_root @ self.model.model.gravity.linear
         self._weight_W = tool_weight_W(rt.tool_mass, g_W)  # None: no tool to compensate
+        offset = rt.wrench_offset  # the sensor's bias (0: none, nothing subtracted)
+        self._offset = tuple(float(c) for c in offset) if np.any(offset) else None
         if rt.force_filter_hz != self.filter.cutoff_hz:
             value, ready = self.filter.value.copy(), self.filter.ready
             self.filter = LowPassFilter(rt.force_filter_hz)
@@ -71,6 +77,10 @@ class LatestInputs:
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
+        raw = force
+        if self._offset is not None and len(force) == 3:
+            ox, oy, oz = self._offset
+            force = (force[0] - ox, force[1] - oy, force[2] - oz)
         try:
             sample = self.gate.check(frame_id, force, t)
         except ImplausibleWrench as exc:
@@ -79,6 +89,37 @@ class LatestInputs:
             self._fault('wrench_dropped', exc)
         self._wrench_prev_t = -math.inf if self.wrench is None else self.wrench.t
         self.wrench, self._new_wrench = sample, True
+        if self.tare is not None:
+            self._feed_tare(raw, t)
+
+    def start_tare(self, tare: Tare) -> None:
+        """Begin a tare with the tool's weight as the sensor sees it now (aborted: why not)."""
+        s, w = self.state, self.wrench
+        if s is None or w is None:
+            tare.abort('no joint state and wrench yet')
+            return
+        if not still(s.qdot):
+            tare.abort(f'the arm is moving (|qdot| up to {np.abs(s.qdot).max():.3g} rad/s)')
+            return
+        if self._weight_W is not None:
+            R = self._rotation(w.frame_id)
+            tare.weight_S = self._weight_W if R is None else R.T.dot(self._weight_W)
+        self.tare = tare
+
+    def _feed_tare(self, raw: Sequence[float], t: float) -> None:
+        tare = self.tare
+        if tare.running and not still(self.state.qdot):
+            tare.abort('the arm moved during the tare')
+        tare.add(float(raw[0]), float(raw[1]), float(raw[2]), t)
+        if not tare.running:
+            self.tare = None
+
+    def _rotation(self, frame: str) -> np.ndarray | None:
+        """Return R_W_frame at the latest state (None for the base frame)."""
+        model = self.model
+        return (None if frame == model.base_link else self.kin().R_W_ee
+                if frame == model.end_effector_link
+                else model.frame_rotation(self.state.q, frame))
 
     def _fault(self, counter: str, exc: InputError) -> None:
         self.counters[counter] += 1
@@ -96,10 +137,7 @@ class LatestInputs:
         """Return f_W: the newest wrench in the base frame, low-pass filtered over its stamps."""
         if self._new_wrench:
             w = self.wrench
-            frame = w.frame_id
-            R = (None if frame == self.model.base_link else self.kin().R_W_ee
-                 if frame == self.model.end_effector_link
-                 else self.model.frame_rotation(self.state.q, frame))
+            R = self._rotation(w.frame_id)
             f_W = -w.F_S if R is None else -R.dot(w.F_S)  # environment.f_W_from_sensor_wrench
             if self._weight_W is not None:  # the sensor feels the tool's weight: remove it
                 f_W = f_W + self._weight_W

@@ -43,7 +43,7 @@ _DOMAIN_OFFSETS = {
     'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
     'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'sim_watchdog': 21,
-    'mujoco_ros': 30,
+    'task_interface': 24, 'mujoco_ros': 30,
 }
 
 
@@ -361,10 +361,11 @@ class RealTimeRig:
     """
 
     def __init__(self, tmp_path: Path, domain: int, ctrl_prefix: Sequence[str] = (),
-                 sim_args: Sequence[str] = MASSES_OFF) -> None:
+                 sim_args: Sequence[str] = MASSES_OFF, ctrl_args: Sequence[str] = ()) -> None:
         from rclpy.parameter_client import AsyncParameterClient
         self.sim = NodeProcess(SIM_MODULE, tmp_path / 'sim.log', domain, list(sim_args))
-        self.ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain)
+        self.ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain,
+                                list(ctrl_args))
         if ctrl_prefix:
             self.ctrl.command_override = [*ctrl_prefix, *self.ctrl.command[:3]]
             self.ctrl.args = ['--params-file', str(self.ctrl.params_file)]

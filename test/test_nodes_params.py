@@ -184,9 +184,16 @@ def test_empty_arrays_at_start_up_mean_default(tmp_path):
 
 
 def test_dump_and_reload(controller, tmp_path):
-    """Dump every parameter as ``ros2 param dump`` does; the dump starts an identical node."""
+    """
+    Dump every parameter as ``ros2 param dump`` does; the dump starts an identical node.
+
+    With a sensor offset that a tare stored (``wrench_offset``): the restart keeps it.
+    """
     import yaml
     node, client = controller
+    tared = [0.8, -2.5, 0.4]
+    result = _wait(client.set_parameters([Parameter('wrench_offset', value=tared)]))
+    assert result.results[0].successful, result.results[0].reason
     names = _wait(client.list_parameters()).result.names
     values = _wait(client.get_parameters(names)).values
     dumped = {n: parameter_value_to_python(v) for n, v in zip(names, values)}
@@ -206,8 +213,11 @@ def test_dump_and_reload(controller, tmp_path):
                              ('law', 'k_d'), ('runtime', 'joints')):
             assert getattr(getattr(a, group), field) == getattr(getattr(b, group), field), field
         for group, field in (('runtime', 'effort_limits'), ('law', 'theta_min'),
-                             ('law', 'theta_max'), ('law', 'n'), ('law', 'Gamma')):
+                             ('law', 'theta_max'), ('law', 'n'), ('law', 'Gamma'),
+                             ('runtime', 'wrench_offset')):
             np.testing.assert_array_equal(getattr(getattr(a, group), field),
                                           getattr(getattr(b, group), field))
+        np.testing.assert_array_equal(b.runtime.wrench_offset, tared)
     finally:
         running.close()
+        _wait(client.set_parameters([Parameter('wrench_offset', value=[])]))

@@ -6,8 +6,10 @@ cached per name list, so a steady stream costs no lookups). :class:`WrenchGate` 
 whether a wrench reading is plausible: finite, in a known frame, not older than the last,
 within ``wrench_limit`` and not changing faster than ``wrench_rate_limit`` from the last
 accepted reading. A frozen sensor (bit-identical non-zero readings) is flagged so the
-runtime can treat its value as stale; exact zeros are exempt, since that is what a
-noise-free simulated sensor reports out of contact (a real sensor is never exactly 0).
+runtime can treat its value as stale; (practically) exact zeros are exempt, since that is what
+a noise-free simulated sensor reports out of contact, also once its bias is tared away (the
+offset, a mean of identical readings, may differ from them in the last bit; a real sensor is
+never that close to 0).
 Each problem raises :class:`InputError` naming it.
 """
 from __future__ import annotations
@@ -19,6 +21,9 @@ import numpy as np
 
 __all__ = ['ImplausibleWrench', 'InputError', 'JointInput', 'JointSample', 'WrenchGate',
            'WrenchSample']
+
+
+NO_FORCE_N = 1e-9  # a reading this small is no force (exempt from the frozen-sensor check)
 
 
 class InputError(ValueError):
@@ -125,7 +130,7 @@ class WrenchGate:
             if rate > self.wrench_rate_limit:
                 raise ImplausibleWrench(f'implausible wrench: changes at {rate:.4g} N/s > '
                                         f'wrench_rate_limit {self.wrench_rate_limit:g} N/s')
-        frozen = same_frame and size > 0.0 and (fx, fy, fz) == self._last_xyz
+        frozen = same_frame and size > NO_FORCE_N and (fx, fy, fz) == self._last_xyz
         self.frozen_since = (self.frozen_since if self.frozen_since is not None else
                              last.t) if frozen else None
         self._last_xyz = (fx, fy, fz)

@@ -91,6 +91,7 @@ class ControlLoop:
         self._pending: deque = deque(maxlen=1)
         self._restart: deque = deque(maxlen=1)
         self._reference: deque = deque(maxlen=1)
+        self._tare: deque = deque(maxlen=1)
         self._mode = None
         self._t_state, self._t_tick = 0.0, -1.0
         self.node = Node(f'_{owner.get_name()}_rt', namespace=owner.get_namespace(),
@@ -129,6 +130,10 @@ class ControlLoop:
     def restart(self) -> None:
         """Start again from the arm's state at the next tick (a re-activation)."""
         self._restart.append(True)
+
+    def start_tare(self, tare: Any) -> None:
+        """Begin a tare (core/runtime/tare.py) at the next joint state; the node polls it."""
+        self._tare.append(tare)
 
     def hold_reference(self, x_d_W: Sequence[float]) -> None:
         """Hold a user reference point from the next tick on."""
@@ -190,6 +195,8 @@ class ControlLoop:
             self.runtime.restart()
         if self._reference:
             self.runtime.on_reference(self._reference.popleft())
+        if self._tare:
+            self.runtime.start_tare(self._tare.popleft())
 
     def _on_joint_state(self, raw: bytes) -> None:
         msg = read_joint_state(raw)

@@ -27,18 +27,17 @@ from __future__ import annotations
 
 from collections import Counter
 import gc
-import math
 import sys
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PointStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_msgs.msg import String
 
 from .control_loop import ControlLoop, LoopSettings
 from .diagnostics import controller_status, EVENT_COUNTERS, loop_report
+from .task_interface import TaskInterface
 from .telemetry import ControllerOutputs, TOPIC_COMMANDS
 from ..common.model_source import expand_description, missing_description_hint
 from ..common.node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
@@ -87,7 +86,7 @@ class ControllerNode(LifecycleNode):
         self.model: RobotModel | None = None
         self.loop: ControlLoop | None = None
         self._description_msg: str | None = None
-        self._reference_sub = None
+        self.task: TaskInterface | None = None  # ~/reference, ~/target_wrench, ~/tare
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # drains in lockstep too
         self.create_timer(TELEMETRY_DRAIN_S, self._guarded('telemetry', self._on_telemetry),
                           clock=steady)
@@ -205,9 +204,7 @@ class ControllerNode(LifecycleNode):
         self.params = self.runtime.params
         self._ran = False  # a fresh runtime starts from the arm by itself
         self.outputs = ControllerOutputs(self, self.model.base_link, self.model.theta_names)
-        self._reference_sub = self.create_subscription(
-            PointStamped, '~/reference', self._guarded('reference', self._on_reference),
-            DEFAULT_QOS)
+        self.task = TaskInterface(self)
         # a full collection holds the GIL (300 ms seen): before the control thread runs
         gc.collect()
         gc.freeze()  # the start-up heap is never scanned again: shorter collector passes
@@ -246,9 +243,9 @@ class ControllerNode(LifecycleNode):
         if self.loop is not None:
             self.loop.stop()
             self.loop = None
-        if self._reference_sub is not None:
-            self.destroy_subscription(self._reference_sub)
-            self._reference_sub = None
+        if self.task is not None:
+            self.task.destroy()
+            self.task = None
         if self.runtime is not None:
             self.outputs.destroy()
         self.runtime = self.model = self.params = None
@@ -295,15 +292,6 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().error(f'{name} failed: {exc!r}', throttle_duration_sec=1.0)
         return run
 
-    def _on_reference(self, msg: PointStamped) -> None:
-        if msg.header.frame_id not in ('', self.model.base_link):
-            raise InputError(f"reference frame '{msg.header.frame_id}' is not "
-                             f"'{self.model.base_link}' (no TF here)")
-        point = (msg.point.x, msg.point.y, msg.point.z)
-        if not all(math.isfinite(x) for x in point):
-            raise InputError(f'reference must be 3 finite numbers, got {list(point)}')
-        self.loop.hold_reference(point)
-
     def _on_telemetry(self) -> None:
         """Publish what the control thread queued (every k-th tick's output)."""
         queue = self.loop.telemetry if self.loop is not None else ()
@@ -349,6 +337,7 @@ class ControllerNode(LifecycleNode):
             new_events = {k: v - self._events.get(k, 0) for k, v in counts.items()}
             self._events = counts
             extra['delay_margin_ms'] = self.runtime.delay_margin(self.params) * 1e3
+            extra.update(self.task.report() if self.task is not None else {})
         if self.last_error and self.runtime is None:
             extra['configure_error'] = self.last_error
         errors = dict(self.errors)

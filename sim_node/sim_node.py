@@ -4,8 +4,9 @@
 Publishes ``joint_states``, ``force_torque_sensor_broadcaster/wrench`` (force the
 environment exerts on the tool, in ``tool0``, with noise; published just before the joint
 state of the same step), ``sim/contact_wrench`` (true force the tool exerts on the
-surface, base frame; at ``telemetry_rate_hz``), ``robot_description`` (its URDF, transient
-local, like robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
+surface, base frame; at ``telemetry_rate_hz``), ``sim/link_masses`` (the true link masses,
+once, transient local), ``robot_description`` (its URDF, transient local, like
+robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
 late callbacks, lost periods, the plant's mean time per step); takes efforts from
 ``effort_controller/commands``. Names are relative, so ``-r __ns:=/arm1`` moves them all.
 Until the first valid command the arm is held still (brakes).
@@ -133,6 +134,7 @@ class SimNode(Node):
         self._physics_s, self._physics_steps0 = 0.0, 0  # time in the plant since the report
         self._make_messages()
         self._make_endpoints(urdf)
+        self._publish_masses(v['masses'] or model.theta_nominal.tolist())
         self._t_wall = time.monotonic()
         self._publish(self.sim.measure())
         # lockstep runs as fast as it can: at FIFO it would starve the machine (and its reader)
@@ -187,6 +189,17 @@ class SimNode(Node):
                         else (self.dt, self._advance))
         self.timer = self.create_timer(period, self._guarded('timer', tick), clock=steady)
         self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics), clock=steady)
+
+    def _publish_masses(self, masses: list[float]) -> None:
+        """
+        Publish the arm's true link masses on ``sim/link_masses`` once (transient local).
+
+        What theta_hat converges to with the ``link_masses`` parameter set: the report draws
+        them as the true values (Fig. 5).
+        """
+        self.pub_masses = self.create_publisher(Float64MultiArray, 'sim/link_masses',
+                                                DESCRIPTION_QOS)
+        self.pub_masses.publish(Float64MultiArray(data=[float(m) for m in masses]))
 
     def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None, tuple]:
         """

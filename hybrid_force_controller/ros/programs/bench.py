@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .launch import find_config, PKG
+from .launch import find_config, PAPER_MASSES_OFF, PKG
 from .load import CpuMeter
 from .tracking import TrackingMeter
 from ...tools.offline_bench import offline_figures
@@ -326,7 +326,7 @@ def ros_loop_figures(duration_s: float = 20.0, load_duty: float = 0.3,
 
 def _params(args: argparse.Namespace) -> list[str]:
     """Return ``-p`` arguments of both nodes: the sim's masses and ``--param``."""
-    masses = args.masses or ('[0.65, 1.35]' if args.arm == 'paper' else None)
+    masses = args.masses or (PAPER_MASSES_OFF if args.arm == 'paper' else None)
     named = ([f'masses:={masses}'] if masses else []) + list(args.param)
     return [a for p in named for a in ('-p', p)]
 

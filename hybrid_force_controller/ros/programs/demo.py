@@ -31,7 +31,7 @@ import sys
 import time
 from typing import Sequence
 
-from .launch import find_config, PKG
+from .launch import find_config, PAPER_MASSES_OFF, PKG
 
 #: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
 #: Panda's wrist sensor, which the controller compensates; the paper's arm keeps a massless tip
@@ -51,6 +51,11 @@ def _parser() -> argparse.ArgumentParser:
                     help="the sim's physics (mujoco: MuJoCo, sphere tool, wrist sensor)")
     ap.add_argument('--friction', type=float, default=None,
                     help='mujoco: friction mu of the surface (default 0; the Panda 0.3)')
+    ap.add_argument('--masses', default=None,
+                    help="the sim's true link masses, as the arm differs from its URDF (default: "
+                    f'the paper arm {PAPER_MASSES_OFF}, 50 %% off; the Panda: 30 %% off, '
+                    'config/panda_table.yaml); the controller starts from the URDF and learns '
+                    'them (Fig. 5)')
     ap.add_argument('--tool-mass', type=float, default=None,
                     help="mujoco: mass of the tool, kg, in the sim and the controller's "
                     'tool_mass (default 0; the Panda 0.1)')
@@ -73,11 +78,17 @@ def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:
     return out, mu, mass
 
 
+def _sim_masses(args: argparse.Namespace) -> list[str]:
+    """Return the sim's ``-p masses:=...`` (the paper arm's default; the Panda's file's)."""
+    masses = args.masses or (PAPER_MASSES_OFF if args.arm == 'paper' else None)
+    return ['-p', f'masses:={masses}'] if masses else []
+
+
 def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, str],
-                 log_dir: Path) -> list[subprocess.Popen]:
+                 log_dir: Path, sim_args: Sequence[str] = ()) -> list[subprocess.Popen]:
     """Start sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
     common = ['--ros-args', *ros_args]
-    sim = [sys.executable, '-m', 'sim_node.sim_node', *common,
+    sim = [sys.executable, '-m', 'sim_node.sim_node', *common, *sim_args,
            '-p', f'lockstep:={str(lockstep).lower()}', '-p', f'surface_friction:={mu!r}']
     ctrl = [sys.executable, '-m', f'{PKG}.ros.controller.controller_node', *common,
             '-p', f'use_sim_time:={str(lockstep).lower()}']
@@ -152,7 +163,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f'demo: {args.arm} arm on {args.physics} physics, {args.duration:.0f} s, '
           f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
     ros_args, mu, tool_mass = _scenario_args(args)
-    procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out)
+    procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out,
+                         _sim_masses(args))
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout)
     except (RuntimeError, TimeoutError) as exc:

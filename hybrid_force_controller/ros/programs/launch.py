@@ -4,15 +4,18 @@ from __future__ import annotations
 from pathlib import Path
 import sys
 
-__all__ = ['PKG', 'find_config']
+__all__ = ['PAPER_MASSES_OFF', 'PKG', 'find_config']
 
 PKG = 'hybrid_force_controller'
+# the sim's link masses for the paper's arm in demo and bench: 50 % off the URDF's [1.3, 0.9],
+# as a real arm differs from its model (the controller starts from the URDF's and learns them)
+PAPER_MASSES_OFF = '[0.65, 1.35]'
 
 
 def find_config(name: str = 'params.yaml') -> Path:
     """config/NAME from the source tree, the pip prefix or the ament index."""
-    here = Path(__file__).resolve().parents[1]
-    candidates = [here.parent / 'config' / name,
+    source_tree = Path(__file__).resolve().parents[3]  # <tree>/<package>/ros/programs/.
+    candidates = [source_tree / 'config' / name,
                   Path(sys.prefix) / 'share' / PKG / 'config' / name]
     try:
         from ament_index_python.packages import get_package_share_directory

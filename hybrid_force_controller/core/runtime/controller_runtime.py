@@ -43,6 +43,7 @@ from .run_clock import RunClock
 from ..config.params import ControllerParams
 from ..law.bumpless import RestartBlend
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
+from ..law.path import PathPlan
 from ..law.set_validation import SetValidator
 from ..law.stiffness_loop import StiffnessLoop, StiffnessStatus
 from ..model.robot_model import ModelError, RobotModel
@@ -151,12 +152,25 @@ class ControllerRuntime:
         """
         Hold a user reference point (base frame) instead of the sine, blended in.
 
-        Any later change of a ``ref_*`` parameter (or ``n``) releases it.
+        Any later change of a ``ref_*`` parameter (or ``n``) releases it; a path ends.
         """
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
         self._motion.hold(self.run_time, x)
+
+    def on_path(self, plan: PathPlan | None, seq: int = 0) -> None:
+        """
+        Follow a planned path (law/path.py, planned off this thread), number ``seq``.
+
+        It blends in from the current reference; its clock runs only in the force loop in
+        contact (path_run.py); at its end the reference holds the last point. None (an empty
+        path) stops the motion smoothly and holds. A ``ref_*`` or ``n`` change releases it.
+        """
+        if plan is None:
+            self._motion.stop(self.run_time)
+        else:
+            self._motion.follow(self.run_time, plan, seq)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -222,6 +236,7 @@ class ControllerRuntime:
         if kind:  # the last tick's force transient or tracking fault
             self._begin(kind, t)
         approach = self._approach_ref(dt_state)
+        self._motion.advance_path(dt_state, self.mode == Mode.RUNNING and touching)
         ref = self._motion(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
@@ -348,6 +363,7 @@ class ControllerRuntime:
             self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
             self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._tau_last)
             self._clock.pause(s.t)  # the reference pauses (_start)
+            self._motion.pause_path()
         self.mode = Mode.SAFE
         fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
@@ -378,4 +394,4 @@ class ControllerRuntime:
             tau = tau[self._cmd_order]  # (efforts are fresh arrays: none is ever mutated)
         return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
-                          self._stiffness.k_hat)
+                          self._stiffness.k_hat, self._motion.path_progress())

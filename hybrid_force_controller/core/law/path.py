@@ -11,8 +11,10 @@ evaluates the result, :meth:`PathPlan.rows` (an index and four weights per tick)
   after the first, linearly in between; a segment faster than ``max_speed`` is refused.
 * **Untimed** (all stamps equal, e.g. zero): corners rounded within ``corner_tolerance`` and
   timed at ``speed`` with ``|a| <= max_accel`` (path_geometry.py), at rest at both ends.
-* **Transit.** When the first pose is more than :data:`MIN_TRANSIT_M` from the start point
-  (the current reference), an untimed straight transit to it comes first, at rest at its end.
+* **Transit.** The plan starts where the current reference would stop: ``x + v T / 2``, T
+  = :func:`stop_time` (the runtime blends into it with that monotone stop, motion.py). When
+  the first pose is more than :data:`MIN_TRANSIT_M` from there, an untimed straight transit
+  to it comes first: the spline is at rest at the first pose at ``transit_s + h``.
 * **The spline.** The samples ``c_k`` (every ``h`` = :data:`SAMPLE_S`) are the control points
   of a uniform cubic B-spline whose end points are repeated twice more: x_d, xdot_d and
   xddot_d are continuous everywhere, and the spline starts and ends at rest with zero
@@ -32,12 +34,13 @@ import numpy as np
 from .path_geometry import time_polyline
 
 __all__ = ['MAX_DURATION_S', 'PathError', 'PathLimits', 'PathPlan', 'SAMPLE_S', 'check_path',
-           'follow_basis', 'plan_path']
+           'follow_basis', 'plan_path', 'stop_time']
 
 SAMPLE_S = 0.01  # h: the spline's knot spacing, s
 MAX_DURATION_S = 10000.0  # a longer plan is refused (1e6 samples, 24 MB)
 MIN_TRANSIT_M = 1e-4  # a start closer than this to the first pose is left to the blend
 _SAME_M = 1e-9  # consecutive poses closer than this are one
+BLEND_MIN_S = 0.05  # the shortest blend into a path or a stop, s
 
 
 class PathError(ValueError):
@@ -53,6 +56,17 @@ class PathLimits:
     max_speed: float
     max_poses: int
     corner_tolerance: float
+
+
+def stop_time(speed: float, a_max: float) -> float:
+    """
+    Return T of the monotone stop from ``speed`` (m/s) at most ``a_max`` (m/s^2), s.
+
+    Blending (reference.py) from (x, v) into a point held at ``x + v T / 2`` over T gives the
+    velocity ``v (1 - s)^2 (1 + 2 s)``, s = t / T: it never reverses, and its deceleration is at
+    most ``1.5 |v| / T``.
+    """
+    return max(BLEND_MIN_S, 1.5 * speed / a_max)
 
 
 def follow_basis(n_W: np.ndarray, task_axes: Sequence[int]) -> np.ndarray:
@@ -126,20 +140,25 @@ def _untimed_samples(pts: np.ndarray, limits: PathLimits) -> np.ndarray:
 
 
 def plan_path(points_W: np.ndarray, stamps: np.ndarray, start_W: np.ndarray | None,
-              n_W: np.ndarray, task_axes: Sequence[int], limits: PathLimits) -> PathPlan:
+              n_W: np.ndarray, task_axes: Sequence[int], limits: PathLimits,
+              start_v_W: np.ndarray | None = None) -> PathPlan:
     """
     Check and plan a path of ``points_W`` (N >= 1, base frame) stamped ``stamps`` (s).
 
-    ``start_W``: where the reference is (None: at the first pose, no transit). Raises
-    :class:`PathError` with the reason (module docstring).
+    ``start_W``, ``start_v_W``: where the reference is and how fast it moves (None: at the
+    first pose, at rest). Raises :class:`PathError` with the reason (module docstring).
     """
     points_W, stamps = np.asarray(points_W, dtype=float), np.asarray(stamps, dtype=float)
     check_path(points_W, stamps, limits)
     if not len(points_W):
         raise PathError('an empty path has no plan (it stops the motion)')
     B = follow_basis(n_W, task_axes)
+    P = B @ B.T
     o = points_W[0] if start_W is None else np.asarray(start_W, dtype=float)
-    pts = o + (points_W - o) @ B @ B.T
+    if start_v_W is not None:  # where it would stop
+        v = P @ np.asarray(start_v_W, dtype=float)
+        o = o + 0.5 * stop_time(float(np.linalg.norm(v)), limits.max_accel) * v
+    pts = o + (points_W - o) @ P
     t = stamps - stamps[0]
     timed = bool(np.any(t != 0.0))
     samples = _timed_samples(pts, t, limits) if timed else _untimed_samples(pts, limits)
@@ -147,8 +166,8 @@ def plan_path(points_W: np.ndarray, stamps: np.ndarray, start_W: np.ndarray | No
     if np.linalg.norm(pts[0] - o) > MIN_TRANSIT_M:
         lead = time_polyline(np.array((o, pts[0])), limits.speed, limits.max_accel, 0.0,
                              SAMPLE_S)
-        transit_s = (len(lead) - 1) * SAMPLE_S
-        samples = np.concatenate((lead, samples))
+        transit_s = len(lead) * SAMPLE_S  # three samples at the first pose: at rest there
+        samples = np.concatenate((lead, samples[:1], samples))
     if (len(samples) + 1) * SAMPLE_S > MAX_DURATION_S:
         raise PathError(f'longer than {MAX_DURATION_S:g} s with the transit')
     return PathPlan(samples, SAMPLE_S, timed, transit_s)

@@ -44,6 +44,7 @@ from ..config.params import ControllerParams
 from ..law.bumpless import RestartBlend
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
 from ..law.path import PathPlan
+from ..law.reference import Reference
 from ..law.set_validation import SetValidator
 from ..law.stiffness_loop import StiffnessLoop, StiffnessStatus
 from ..model.robot_model import ModelError, RobotModel
@@ -149,11 +150,7 @@ class ControllerRuntime:
         return self._in.last_fault
 
     def on_reference(self, x_d_W: Sequence[float]) -> None:
-        """
-        Hold a user reference point (base frame) instead of the sine, blended in.
-
-        Any later change of a ``ref_*`` parameter (or ``n``) releases it; a path ends.
-        """
+        """Hold a point (base frame), blended in; a path ends; a ref_*/n change releases it."""
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
@@ -161,11 +158,10 @@ class ControllerRuntime:
 
     def on_path(self, plan: PathPlan | None, seq: int = 0) -> None:
         """
-        Follow a planned path (law/path.py, planned off this thread), number ``seq``.
+        Follow a planned path number ``seq`` (law/path.py), blended in (motion.py); None stops.
 
-        It blends in from the current reference; its clock runs only in the force loop in
-        contact (path_run.py); at its end the reference holds the last point. None (an empty
-        path) stops the motion smoothly and holds. A ``ref_*`` or ``n`` change releases it.
+        Its clock runs only in the force loop in contact (path_run.py); at its end the
+        reference holds the last point. A ``ref_*`` or ``n`` change releases it.
         """
         if plan is None:
             self._motion.stop(self.run_time)
@@ -202,8 +198,12 @@ class ControllerRuntime:
 
     def desired_position(self, t: float) -> np.ndarray:
         """Return the reference position at time ``t`` on the caller's clock (base frame)."""
+        return self.reference(t).x_d_W
+
+    def reference(self, t: float) -> Reference:
+        """Return the reference at time ``t`` on the caller's clock (a path: at its clock)."""
         t0 = self._clock.t0
-        return self._motion(0.0 if t0 is None else t - t0).x_d_W
+        return self._motion(0.0 if t0 is None else t - t0)
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
@@ -252,7 +252,7 @@ class ControllerRuntime:
         self._observe(t, f_n, out.e, touching)
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
-        return self._running_output(tau, out, ref.x_d_W, f_W)
+        return self._running_output(tau, out, ref, f_W)
 
     def _state_step(self, gap: bool) -> tuple[float, float]:
         """Return the time since the last integrated state and the part to integrate (RunClock)."""
@@ -371,16 +371,16 @@ class ControllerRuntime:
         tau, _ = self._limiter(tau)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)
 
-    def _running_output(self, tau: np.ndarray, out: ControlOutput, x_d_W: np.ndarray,
+    def _running_output(self, tau: np.ndarray, out: ControlOutput, ref: Reference,
                         f_W: np.ndarray) -> TickOutput:
         status = (_STATUS[self.mode] if self.mode != Mode.NO_SURFACE else
                   f'surface not found within approach_limit = '
                   f'{self._params.runtime.approach_limit:g} m: holding')
-        return self._output(tau, self.mode, status, f_W, out.kin.p_W, x_d_W, out.e)
+        return self._output(tau, self.mode, status, f_W, out.kin.p_W, ref, out.e)
 
     def _output(self, tau: np.ndarray | None, mode: Mode, status: str,
                 f_W: np.ndarray | None = None, x_W: np.ndarray | None = None,
-                x_d_W: np.ndarray | None = None, e: np.ndarray | None = None) -> TickOutput:
+                ref: Reference | None = None, e: np.ndarray | None = None) -> TickOutput:
         self.mode, self.status = mode, status
         if tau is not None:
             tau = self._bumpless(tau, self._clock.t_tick)
@@ -392,6 +392,7 @@ class ControllerRuntime:
             e_W[self.model.task_index] = e
         if tau is not None and self._cmd_order is not None:
             tau = tau[self._cmd_order]  # (efforts are fresh arrays: none is ever mutated)
-        return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
+        return TickOutput(tau, mode, x_W, x_W if ref is None else ref.x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
-                          self._stiffness.k_hat, self._motion.path_progress())
+                          self._stiffness.k_hat, self._motion.path_progress(),
+                          None if ref is None else ref.xdot_d_W)

@@ -29,7 +29,8 @@ class TickOutput:
 
     3-D vectors are in the base frame; ``tau`` is in the order of ``params.runtime.joints``, None
     while waiting; ``k_hat`` is the stiffness estimate, N/m, NaN while unknown; ``path`` the
-    progress of a user's path (path_run.py).
+    progress of a user's path (path_run.py); ``xdot_d_W`` the reference's velocity (None
+    while not running).
     """
 
     tau: np.ndarray | None
@@ -44,3 +45,4 @@ class TickOutput:
     status: str = ''
     k_hat: float = math.nan
     path: PathProgress = IDLE
+    xdot_d_W: np.ndarray | None = None

@@ -22,14 +22,12 @@ from .path_run import IDLE, PATH_STOPPED, PathProgress, PathRun
 from ..config.params import ControllerParams
 from ..law.approach import Approach, Handover
 from ..law.control_law import ApproachRef
-from ..law.path import PathPlan
+from ..law.path import PathPlan, stop_time
 from ..law.reference import BlendedReference, Reference, SineReference
 
 __all__ = ['Motion', 'reference_changed']
 
-BLEND_MIN_S = 0.05  # the shortest blend into a path or a stop, s
-# peaks of the quintic blend's basis (reference.py _hermite): |H0''| <= 5.77, |H1''| <= 3.94
-_H0_PEAK, _H1_PEAK = 5.78, 3.95
+_H0_PEAK = 5.78  # the peak of the quintic blend's |H0''| (reference.py _hermite): 10/sqrt(3)
 
 _REFERENCE_FIELDS = ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time')
 
@@ -83,16 +81,17 @@ class Motion:
         """
         Follow ``plan`` from ``tau`` on (its clock starts at rest), blended from the reference.
 
-        The blend lasts long enough that its own acceleration stays within ``path_max_accel``
-        (at most half of it from each of the position and velocity offsets).
+        The plan starts where the reference, planned from, would stop (law/path.py): the
+        blend is that monotone stop (``stop_time``), lengthened so that a residual offset r
+        (the reference moved on while the plan was made) adds at most ``a_max / 2``.
         """
         a_max = self.path_max_accel
         run = PathRun(plan, seq, a_max)
         now, start = self.ref(tau), run.rows()
-        dp = float(np.linalg.norm(self.ref.P_t @ (now.x_d_W - start[0])))
-        dv = float(np.linalg.norm(self.ref.P_t @ (now.xdot_d_W - start[1])))
-        blend = max(BLEND_MIN_S, 2.0 * _H1_PEAK * dv / a_max,
-                    float(np.sqrt(2.0 * _H0_PEAK * dp / a_max)))
+        dv_W = self.ref.P_t @ now.xdot_d_W
+        T = stop_time(float(np.linalg.norm(dv_W)), a_max)
+        r = float(np.linalg.norm(self.ref.P_t @ (now.x_d_W - start[0]) + 0.5 * T * dv_W))
+        blend = max(T, float(np.sqrt(2.0 * _H0_PEAK * r / a_max)))
         self._release()
         self.path = run
         self.ref.switch(tau, path=run, blend_s=blend)
@@ -101,13 +100,12 @@ class Motion:
         """
         Stop the motion smoothly and hold (an empty path): no jump, no coming back.
 
-        Holding ``x + v T / 2`` with a blend of ``T`` from (x, v) gives the velocity
-        ``v (1 - s)^2 (1 + 2 s)``, s = t / T: monotone, its deceleration at most
-        ``1.5 |v| / T``; T is chosen so that this is ``path_max_accel``.
+        It holds ``x + v T / 2``, blended over T = ``stop_time`` (law/path.py): the velocity
+        falls monotonically, decelerating at most ``path_max_accel``.
         """
         now = self.ref(tau)
         v_W = self.ref.P_t @ now.xdot_d_W
-        T = max(BLEND_MIN_S, 1.5 * float(np.linalg.norm(v_W)) / self.path_max_accel)
+        T = stop_time(float(np.linalg.norm(v_W)), self.path_max_accel)
         self.hold(tau, now.x_d_W + 0.5 * T * v_W, blend_s=T)
 
     def _release(self) -> None:

@@ -58,16 +58,20 @@ class PathRun:
     def advance(self, dt: float, go: bool) -> None:
         """Advance the clock by ``dt`` s of the run (``go``: running in contact)."""
         self.going = go
+        r = self.rho
+        sdot0 = r * r * (3.0 - 2.0 * r)
         if self.sigma <= 0.0:  # at rest, zero acceleration: may start at full rate
             self.rho, self.rho_rate = (1.0 if go else 0.0), 0.0
+            sdot0 = self.rho
         else:
             target = 1.0 if go else 0.0
             step = dt / self.ramp_s
             rho = min(self.rho + step, 1.0) if go else max(self.rho - step, 0.0)
             self.rho_rate = 0.0 if rho == target else (1.0 if go else -1.0) / self.ramp_s
             self.rho = rho
-        r = self.rho
-        self.sigma = min(self.sigma + r * r * (3.0 - 2.0 * r) * dt, self.plan.duration)
+        r = self.rho  # the trapezoidal rule: sigma follows sigmadot to second order
+        sdot = r * r * (3.0 - 2.0 * r)
+        self.sigma = min(self.sigma + 0.5 * (sdot0 + sdot) * dt, self.plan.duration)
 
     def pause(self) -> None:
         """Stand still from now on (safe mode): the next start ramps up again."""

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from hybrid_force_controller.core.law.path import follow_basis, PathLimits, plan_path
 from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.arm7 import panda_model, panda_scenario
-from hybrid_force_controller.core.offline.engine import Event
+from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
+                                                       square_path_event)
 from hybrid_force_controller.core.offline.scenario import run_scenario
 import numpy as np
 import pytest
@@ -152,22 +152,9 @@ def test_the_path_stands_still_in_safe_mode_and_goes_on(model):
 
 def test_the_panda_follows_a_small_square_on_its_tilted_plane():
     model = panda_model()
-    side = 0.04
-    sent = {}
-
-    def follow_square(rt, plant):
-        n_W = rt.params.law.n
-        x0, v0 = rt.reference(plant.t)[:2]
-        B = follow_basis(n_W, model.task_axes)
-        corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]]) * side - side / 2
-        points = x0 + corners @ B.T + 0.01 * n_W  # 1 cm into the plane: ignored (along n)
-        sent['plan'] = plan_path(points, np.zeros(5), x0, n_W, model.task_axes,
-                                 limits_of(rt.params), start_v_W=v0)
-        sent['t'] = plant.t
-        rt.on_path(sent['plan'], 1)
-
+    side, sent = 0.04, {}
     cfg = panda_scenario(model, 6.5, overrides={'ref_amplitude': [0.0, 0.0, 0.0]},
-                         events=[Event(1.0, follow_square)])
+                         events=[square_path_event(1.0, side, sent)])
     result = run_scenario(cfg, model)
     n_W = result.n_W
     window = result.t >= sent['t']
@@ -176,8 +163,9 @@ def test_the_panda_follows_a_small_square_on_its_tilted_plane():
     assert np.sqrt(np.mean(e_tan ** 2)) <= 1e-3 and e_tan.max() <= 3e-3  # the targets
     f_err = result.f_true_W[window] @ n_W - 5.0
     assert np.sqrt(np.mean(f_err ** 2)) <= 0.1 and result.in_contact[window].all()
-    # it traced the square: the desired and the actual points span its side in the plane
+    # it traced the square: the actual points span its side in the plane
     B = follow_basis(n_W, model.task_axes)
     span = np.ptp((result.x_W[window] - result.x_W[0]) @ B, axis=0)
     assert np.all(span > side * 0.95) and np.all(span < side * 1.3)
     assert result.runtime._motion.path_progress().state == 'done'
+    assert sent['plan'].duration + sent['t'] < 6.5

@@ -192,9 +192,14 @@ class PathPlan:
         steps = np.linalg.norm(np.diff(c, axis=0), axis=1) if len(c) > 1 else np.zeros(1)
         self.v_peak = float(steps.max()) / h
 
-    def rows(self, sigma: float) -> np.ndarray:
-        """Return x_d, xdot_d, xddot_d at the plan's time ``sigma`` (s) as a new (3, 3) array."""
-        u = sigma / self.h
+    def rows(self, sigma: float, sdot: float = 1.0, sddot: float = 0.0) -> np.ndarray:
+        """
+        Return x_d, xdot_d, xddot_d at the plan's time ``sigma`` (s) as a new (3, 3) array.
+
+        With a time scaling (path_run.py) ``sigma`` moves at ``sdot`` (and ``sddot``): the
+        rows are ``p``, ``p' sdot`` and ``p'' sdot^2 + p' sddot``, folded into the weights.
+        """
+        u = float(sigma) / self.h
         if u >= self.segments:
             rows = np.zeros((3, 3))
             rows[0] = self.end_W
@@ -203,11 +208,14 @@ class PathPlan:
         f = u - i if u > 0.0 else 0.0
         g, f2, h = 1.0 - f, f * f, self.h
         f3, h2 = f2 * f, h * h
-        W = np.array((
-            (g * g * g / 6.0, (3.0 * f3 - 6.0 * f2 + 4.0) / 6.0,
-             (-3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0) / 6.0, f3 / 6.0),
-            (-0.5 * g * g / h, (1.5 * f2 - 2.0 * f) / h, (-1.5 * f2 + f + 0.5) / h, 0.5 * f2 / h),
-            (g / h2, (3.0 * f - 2.0) / h2, (1.0 - 3.0 * f) / h2, f / h2)))
+        v = (-0.5 * g * g / h, (1.5 * f2 - 2.0 * f) / h, (-1.5 * f2 + f + 0.5) / h, 0.5 * f2 / h)
+        a = (g / h2, (3.0 * f - 2.0) / h2, (1.0 - 3.0 * f) / h2, f / h2)
+        if sdot != 1.0 or sddot != 0.0:
+            s2 = sdot * sdot
+            a = tuple(ak * s2 + vk * sddot for ak, vk in zip(a, v))
+            v = tuple(vk * sdot for vk in v)
+        W = np.array(((g * g * g / 6.0, (3.0 * f3 - 6.0 * f2 + 4.0) / 6.0,
+                       (-3.0 * f3 + 3.0 * f2 + 3.0 * f + 1.0) / 6.0, f3 / 6.0), v, a))
         return W.dot(self.Q[i:i + 4])
 
     def polyline(self, max_points: int = 500) -> np.ndarray:

@@ -80,14 +80,11 @@ class PathRun:
 
     def rows(self, tau: float = 0.0) -> np.ndarray:
         """Return x_d, xdot_d, xddot_d (a new (3, 3) array); ``tau`` is not used (own clock)."""
-        rows = self.plan.rows(self.sigma)
         r = self.rho
         if r == 1.0:
-            return rows
-        sdot, sddot = r * r * (3.0 - 2.0 * r), 6.0 * r * (1.0 - r) * self.rho_rate
-        rows[2] = rows[2] * (sdot * sdot) + rows[1] * sddot
-        rows[1] *= sdot
-        return rows
+            return self.plan.rows(self.sigma)
+        return self.plan.rows(self.sigma, r * r * (3.0 - 2.0 * r),
+                              6.0 * r * (1.0 - r) * self.rho_rate)
 
     def progress(self) -> PathProgress:
         """Return the state, fraction done and time left (at the plan's rate)."""

@@ -7,7 +7,7 @@ planned here (core/law/path.py), then handed to the control thread
 its next tick. A refused path is logged as a warning and its reason published on
 ``~/path_status`` as ``refused: <reason>``; nothing reaches the control thread, so the current
 motion goes on. Every :data:`POLL_S` the latest tick's output (``ControlLoop.latest``) gives
-the path's progress and the markers (markers.py).
+the path's progress and the markers (markers.py; only while someone subscribes to them).
 
 ``~/path_status`` (std_msgs/String, on change): ``idle``, ``waiting for contact``,
 ``running``, ``done``, ``stopped`` (an empty path, a held point or a ``ref_*``/``n`` change
@@ -127,6 +127,8 @@ class PathTopics:
                 self._publish_status(p.state)
             if p.state in _ACTIVE or changed:
                 self._publish_progress(p.fraction, p.time_left_s)
+        if self.markers.pub.get_subscription_count() == 0:
+            return  # nobody looks (RViz closed): no markers built
         drawn = self.plan is not None and self.status not in (PATH_STOPPED, PATH_IDLE)
         self.markers.set_path((self.seq, drawn), self.plan.polyline() if drawn else None)
         self.markers.publish(out, stamp_ns, self.node.params.law.n)

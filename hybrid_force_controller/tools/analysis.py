@@ -84,6 +84,9 @@ class RunLog:
         yet valid). None when the run did not record it.
     k_true : float, optional
         The surface's true stiffness [N/m] when known (simulation).
+    path_running : numpy.ndarray of bool, shape (N,), optional
+        Whether a user's path was being followed (``~/path_status`` ``running``); None when
+        the run did not record it.
 
     """
 
@@ -100,6 +103,7 @@ class RunLog:
     f_true_W: np.ndarray | None = None
     k_hat: np.ndarray | None = None
     k_true: float | None = None
+    path_running: np.ndarray | None = None
 
     @classmethod
     def from_result(cls, result: Any) -> 'RunLog':
@@ -149,21 +153,29 @@ def _validated_fields(log: RunLog) -> dict[str, Any]:
     if len(names) != p or not all(isinstance(s, str) for s in names):
         raise AnalysisError(f'theta_names: expected {p} strings, got {names!r}')
     out.update(theta_hat=theta_hat, theta_names=names)
-    in_contact = np.asarray(log.in_contact)
-    if in_contact.shape != (n,) or in_contact.dtype.kind not in 'bui':
-        raise AnalysisError(f'in_contact: expected {n} booleans, got shape {in_contact.shape}')
-    out['in_contact'] = in_contact.astype(bool)  # astype copies
-    out['in_contact'].flags.writeable = False
+    out['in_contact'] = _flags('in_contact', log.in_contact, n)  # astype copies
     out['theta_true'] = None if log.theta_true is None else _as_array(
         'theta_true', log.theta_true, (p,))
     out['f_true_W'] = None if log.f_true_W is None else _as_array(
         'f_true_W', log.f_true_W, (n, 3))
     out['k_hat'] = None if log.k_hat is None else _estimate(log.k_hat, n)
+    out['path_running'] = None if log.path_running is None else _flags(
+        'path_running', log.path_running, n)
     if log.k_true is not None:
         out['k_true'] = float(_as_array('k_true', log.k_true, ()))
         if not out['k_true'] > 0.0:
             raise AnalysisError(f'k_true: must be > 0, got {out["k_true"]}')
     return out
+
+
+def _flags(name: str, value: Any, n: int) -> np.ndarray:
+    """Return (N,) booleans (read-only) or raise :class:`AnalysisError`."""
+    arr = np.asarray(value)
+    if arr.shape != (n,) or arr.dtype.kind not in 'bui':
+        raise AnalysisError(f'{name}: expected {n} booleans, got shape {arr.shape}')
+    arr = arr.astype(bool)
+    arr.flags.writeable = False
+    return arr
 
 
 def _estimate(value: Any, n: int) -> np.ndarray:

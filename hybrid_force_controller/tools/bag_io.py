@@ -6,9 +6,9 @@ Read and write the controller's rosbag2 recordings with ``rosbags`` (no rclpy).
 with rosbag2 metadata version 8. Jazzy's rosbag2 (0.26) writes version 9 and reads both;
 version 8 is kept for older readers (Humble-era tools).
 
-Optional topics (a bag without them loads): ``/sim/contact_wrench`` (the true force) and
+Optional topics (a bag without them loads): ``/sim/contact_wrench`` (the true force),
 ``~/stiffness_estimate`` (``std_msgs/Float64``, the online stiffness estimate, NaN while
-unknown).
+unknown) and ``~/path_status`` (``std_msgs/String``: when a user's path was ``running``).
 """
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ from ..core.runtime.contact import CONTACT_FORCE_MIN_N, in_contact
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
            'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
-           'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH', 'TOPIC_WRENCH_DESIRED',
-           'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
+           'TOPIC_PATH_STATUS', 'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH',
+           'TOPIC_WRENCH_DESIRED', 'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
 TOPIC_X = '/hybrid_force_controller/x'
 TOPIC_X_DESIRED = '/hybrid_force_controller/x_desired'
@@ -46,6 +46,7 @@ TOPIC_EFFORT_COMMANDS = '/effort_controller/commands'
 TOPIC_DIAGNOSTICS = '/diagnostics'
 TOPIC_CONTACT_WRENCH = '/sim/contact_wrench'
 TOPIC_STIFFNESS_ESTIMATE = '/hybrid_force_controller/stiffness_estimate'
+TOPIC_PATH_STATUS = '/hybrid_force_controller/path_status'
 
 _POINT = 'geometry_msgs/msg/PointStamped'
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
@@ -64,6 +65,7 @@ RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray'),
     (TOPIC_CONTACT_WRENCH, _WRENCH),
     (TOPIC_STIFFNESS_ESTIMATE, 'std_msgs/msg/Float64'),
+    (TOPIC_PATH_STATUS, 'std_msgs/msg/String'),
 ]
 REQUIRED_TOPICS = (TOPIC_X, TOPIC_X_DESIRED, TOPIC_WRENCH, TOPIC_WRENCH_DESIRED,
                    TOPIC_THETA_HAT)
@@ -206,6 +208,8 @@ def _value(topic: str, msg: Any) -> Any:
         return (msg.point.x, msg.point.y, msg.point.z)
     if topic == TOPIC_STIFFNESS_ESTIMATE:
         return float(msg.data)
+    if topic == TOPIC_PATH_STATUS:  # 1: a path is being followed
+        return 1.0 if msg.data == 'running' else 0.0
     if topic == TOPIC_THETA_HAT:
         label = msg.layout.dim[0].label if len(msg.layout.dim) else ''
         return np.array(msg.data, dtype=float), label
@@ -223,7 +227,8 @@ def _read_series(bag_path: Path) -> dict[str, _Series]:
         Unreadable or empty bag, or a required topic absent.
 
     """
-    wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE)
+    wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE,
+              TOPIC_PATH_STATUS)
     try:
         with AnyReader([bag_path], default_typestore=TYPESTORE) as reader:
             if reader.message_count == 0 or not reader.connections:
@@ -307,6 +312,15 @@ def _stiffness(series: _Series | None, x: _Series) -> np.ndarray | None:
     return k_hat
 
 
+def _path_running(series: _Series | None, x: _Series) -> np.ndarray | None:
+    """Return whether a path was ``running`` at each position sample (None: no status)."""
+    if series is None or not series.values:
+        return None
+    running = _on_x_time(series, x)
+    running[np.asarray(x.log_ns) < min(series.log_ns)] = 0.0  # before the first status
+    return running > 0.5
+
+
 def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
     """Return the unit normal from the largest desired force sample."""
     norms = np.linalg.norm(f_d_W, axis=1)
@@ -330,7 +344,8 @@ def load_run(bag_path: str | Path,
         Contact is the core predicate (``core.contact.in_contact``) on ``n^T f`` with this
         minimum force, ``f`` the true contact force (``/sim/contact_wrench``) when
         recorded, else the measured one; the offline ``paper`` run uses the same test.
-        ``k_hat`` is the recorded stiffness estimate (None without the topic).
+        ``k_hat`` is the recorded stiffness estimate (None without the topic),
+        ``path_running`` whether ``~/path_status`` said ``running`` (None without it).
 
     Returns
     -------
@@ -364,6 +379,7 @@ def load_run(bag_path: str | Path,
                       in_contact=np.array([in_contact(f, minimum=contact_threshold_n)
                                            for f in f_contact_n], dtype=bool),
                       f_true_W=f_true_W,
-                      k_hat=_stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x))
+                      k_hat=_stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x),
+                      path_running=_path_running(series.get(TOPIC_PATH_STATUS), x))
     except AnalysisError as exc:
         raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

@@ -5,6 +5,10 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
   stored: filter, reference, control law (5)-(11), adaptation (26), limits) of the 2-DOF
   arm along the paper trajectory, driven by the loop engine;
 - ``controller_step_7dof_us_median`` / ``_p99``: the same for the 7-DOF Panda (redundant);
+- ``path_tick_7dof_us_median`` / ``_p99`` and ``hold_tick_7dof_us_median`` / ``_p99``: the
+  Panda's tick while it follows a 4 cm square (``~/path``) and, in the same window of the
+  same run without the path, while it holds its point (the reference's cost: the spline's
+  evaluation against a held point);
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline;
 - with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
   tick dearer): its controller step timed in a subprocess, alternating three times with
@@ -21,7 +25,7 @@ import time
 
 import numpy as np
 
-from ..core.offline.arm7 import panda_model, panda_scenario
+from ..core.offline.arm7 import panda_model, panda_scenario, square_path_event
 from ..core.offline.scenario import run_scenario, ScenarioConfig
 
 
@@ -54,6 +58,23 @@ def tick_ratio(old_tree: str, rounds: int = 3) -> dict[str, float]:
             'tick_median_over_old': round(float(np.median(new) / np.median(old)), 3)}
 
 
+def path_tick_figures(model=None) -> dict[str, float]:
+    """Return the Panda's tick with and without a path over the path's window, us."""
+    model = panda_model() if model is None else model
+    still = {'overrides': {'ref_amplitude': [0.0, 0.0, 0.0]}}
+    sent: dict = {}
+    path = run_scenario(panda_scenario(model, 5.0, events=[square_path_event(0.5, 0.04, sent)],
+                                       **still), model, clock_ns=time.perf_counter_ns)
+    hold = run_scenario(panda_scenario(model, 5.0, **still), model,
+                        clock_ns=time.perf_counter_ns)
+    out = {}
+    for name, result in (('path', path), ('hold', hold)):
+        us = result.log.tick_ns[result.t >= sent['t'] + 0.1] / 1e3  # one tick per step
+        out[f'{name}_tick_7dof_us_median'] = round(float(np.median(us)), 2)
+        out[f'{name}_tick_7dof_us_p99'] = round(float(np.percentile(us, 99)), 2)
+    return out
+
+
 def offline_figures(old_tree: str | None = None) -> dict[str, float]:
     """Measure the controller step percentiles and the paper scenario's real-time factor."""
     ratio = {} if old_tree is None else tick_ratio(old_tree)
@@ -67,5 +88,6 @@ def offline_figures(old_tree: str | None = None) -> dict[str, float]:
             'controller_step_us_p99': round(float(np.percentile(step_us, 99)), 2),
             'controller_step_7dof_us_median': round(float(np.median(panda_us)), 2),
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
+            **path_tick_figures(panda),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

@@ -1,8 +1,9 @@
 """
-Figures 3-5 of the paper, and the online stiffness estimate when the run recorded it.
+Figures 3-5 of the paper, the online stiffness estimate when the run recorded it, the path.
 
 The figures are drawn from a :class:`~hybrid_force_controller.tools.analysis.RunLog`; the
-stiffness estimate goes to ``fig6_stiffness.png``.
+stiffness estimate goes to ``fig6_stiffness.png``; :func:`write_path_figure` draws the path
+in the surface plane, desired against actual (``fig7_path.png``, the report's).
 
 Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
 """
@@ -15,11 +16,14 @@ from matplotlib.figure import Figure
 import numpy as np
 
 from .analysis import RunLog, surface_axis, tangential_error
+from .path_analysis import path_window, surface_basis
 
-__all__ = ['FIGURE_NAMES', 'STIFFNESS_FIGURE', 'write_figures']
+__all__ = ['FIGURE_NAMES', 'PATH_FIGURE', 'STIFFNESS_FIGURE', 'write_figures',
+           'write_path_figure']
 
 FIGURE_NAMES = ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png')
 STIFFNESS_FIGURE = 'fig6_stiffness.png'
+PATH_FIGURE = 'fig7_path.png'
 
 _FIGSIZE = (7.0, 4.0)
 _DPI = 90
@@ -147,3 +151,45 @@ def write_figures(log: RunLog, out_dir: str | Path) -> list[Path]:
     if log.k_hat is not None:
         paths.append(_plot_stiffness(log, out / STIFFNESS_FIGURE))
     return paths
+
+
+def write_path_figure(log: RunLog, out_dir: str | Path, t_start: float = 5.0) -> Path:
+    """
+    Draw the path in the surface plane, desired against actual, to ``fig7_path.png``.
+
+    Over the path metrics' window (path_analysis.py ``path_window``: while a user's path was
+    running, else ``t >= t_start``), in the plane's coordinates (``surface_basis``) relative to
+    the window's first desired point, mm. Returns the file's path.
+    """
+    window, what = path_window(log, t_start)
+    if not window.any():
+        window = np.ones(log.t.size, dtype=bool)
+    u_v = surface_basis(log.n_W)
+    origin = log.x_d_W[window][0]
+    desired = 1e3 * (log.x_d_W[window] - origin) @ u_v.T
+    actual = 1e3 * (log.x_W[window] - origin) @ u_v.T
+    fig = Figure(figsize=(6.0, 6.0), dpi=_DPI, layout='constrained')
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    ax.plot(desired[:, 0], desired[:, 1], '--', color='tab:orange', label='desired', lw=1.5)
+    ax.plot(actual[:, 0], actual[:, 1], color='tab:blue', label='actual', lw=1.0)
+    ax.plot(*desired[0], 'o', color='black', label='start')
+    ax.set_aspect('equal', adjustable='datalim')
+    names = [_axis_label(u) for u in u_v]
+    ax.set_xlabel(f'along {names[0]} [mm]')
+    ax.set_ylabel(f'along {names[1]} [mm]')
+    ax.set_title(f'Path in the surface plane ({what})')
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc='best')
+    path = Path(out_dir) / PATH_FIGURE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return path
+
+
+def _axis_label(u: np.ndarray) -> str:
+    """Return a base axis name (``+x``, ``-y``) when ``u`` is one, else its components."""
+    k = int(np.argmax(np.abs(u)))
+    if abs(abs(u[k]) - 1.0) < 1e-9:
+        return ('+' if u[k] > 0 else '-') + _AXIS_NAMES[k]
+    return '(' + ', '.join(f'{c:.2f}' for c in u) + ')'

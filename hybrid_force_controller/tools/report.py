@@ -3,9 +3,12 @@
 
 Writes ``metrics.json`` (non-finite numbers such as an unknown wall time become ``null``;
 ``stiffness_estimate_n_per_m`` is the last recorded stiffness estimate, ``null`` when the
-bag has no ``~/stiffness_estimate`` or it was unknown at the end) and three PNGs to
-``DIR``, plus ``fig6_stiffness.png`` when the estimate was recorded (``--k-true``: the
-surface's true stiffness, drawn for comparison). Exit code 0 on success, 2 on an
+bag has no ``~/stiffness_estimate`` or it was unknown at the end; ``rms_path_error_m`` and
+``max_path_error_m`` the tool's distance from the desired point in the tangent plane, while a
+user's path was running, or over ``t >= T_START`` when none did: ``path_window`` says which)
+and three PNGs to ``DIR``, plus ``fig6_stiffness.png`` when the estimate was recorded
+(``--k-true``: the surface's true stiffness, drawn for comparison) and ``fig7_path.png``, the
+path in the surface plane, desired against actual. Exit code 0 on success, 2 on an
 unreadable bag or invalid run.
 """
 from __future__ import annotations
@@ -19,7 +22,8 @@ from typing import Sequence
 
 from .analysis import AnalysisError, compute_metrics, json_safe
 from .bag_io import BagError, load_run
-from .plots import write_figures
+from .path_analysis import path_metrics
+from .plots import write_figures, write_path_figure
 
 __all__ = ['main']
 
@@ -63,12 +67,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.k_true is not None:
             log = dataclasses.replace(log, k_true=args.k_true)
         metrics = compute_metrics(log, t_start=args.t_start, wall_time_s=args.wall_time)
+        metrics.update(path_metrics(log, t_start=args.t_start))
     except (BagError, AnalysisError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
     metrics_path = args.out / 'metrics.json'
     try:
         figures = write_figures(log, args.out)
+        figures.append(write_path_figure(log, args.out, args.t_start))
         metrics_path.write_text(json.dumps(json_safe(metrics), indent=2) + '\n')
     except OSError as exc:
         print(f'error: cannot write to {args.out}: {exc}', file=sys.stderr)

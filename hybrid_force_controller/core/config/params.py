@@ -6,9 +6,10 @@ here); the ROS node declares them from :data:`CONTROLLER_SCHEMA` and ``config/*.
 overrides values. :func:`build_params` validates a full set once and freezes it into
 :class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
 (26), (29) of [1]), the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
-filter, reference, timeouts, approach, sensor plausibility, tool mass) and the online stiffness
-estimate's (:class:`~.groups.StiffnessConfig`, group ``stiffness``) and the recovery from
-stalls and drops (:class:`~.groups.RecoveryConfig`, group ``recovery``). Pure Python + numpy.
+filter, reference, timeouts, approach, sensor plausibility, tool mass, a user's path) and the
+online stiffness estimate's (:class:`~.groups.StiffnessConfig`, group ``stiffness``) and the
+recovery from stalls and drops (:class:`~.groups.RecoveryConfig`, group ``recovery``). Pure
+Python + numpy.
 """
 from __future__ import annotations
 
@@ -83,6 +84,11 @@ class RuntimeConfig:
     wrench_offset: np.ndarray
     tare_time: float
     f_d_rate: float
+    path_speed: float
+    path_max_accel: float
+    path_max_speed: float
+    path_max_poses: int
+    path_corner_tolerance: float
 
 
 @dataclass(frozen=True)
@@ -257,7 +263,29 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
         reject_frozen_wrench=s['reject_frozen_wrench'], tool_mass=s['tool_mass'],
         tool_com=_array('tool_com', v['tool_com'], (0, 3)).reshape(-1, 3).sum(0),  # []: 0
         wrench_offset=_array('wrench_offset', v['wrench_offset'], (0, 3)).reshape(-1, 3).sum(0),
-        tare_time=s['tare_time'], f_d_rate=s['f_d_rate'])
+        tare_time=s['tare_time'], f_d_rate=s['f_d_rate'], **_path_config(v, s))
+
+
+def _path_config(v: Mapping[str, Any], s: Mapping[str, float]) -> dict[str, Any]:
+    """Return the ``path_*`` fields (``path_speed <= path_max_speed``)."""
+    if s['path_speed'] > s['path_max_speed']:
+        raise ParameterValidationError(
+            f"path_speed = {s['path_speed']:g} m/s is above path_max_speed = "
+            f"{s['path_max_speed']:g} m/s")
+    return {'path_speed': s['path_speed'], 'path_max_accel': s['path_max_accel'],
+            'path_max_speed': s['path_max_speed'],
+            'path_max_poses': _integer(_SPECS['path_max_poses'], v['path_max_poses']),
+            'path_corner_tolerance': s['path_corner_tolerance']}
+
+
+def _integer(spec: ParamSpec, value: Any) -> int:
+    """Return an integer parameter within its bounds."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ParameterValidationError(f'{spec.name} must be an integer, got {value!r}')
+    if (spec.lo is not None and value < spec.lo) or (spec.hi is not None and value > spec.hi):
+        raise ParameterValidationError(
+            f'{spec.name} = {value} is outside [{spec.lo:g}, {spec.hi:g}]')
+    return int(value)
 
 
 def build_params(model: Any, values: Mapping[str, Any] | None = None) -> ControllerParams:

@@ -125,6 +125,21 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('tool_mass', 'double', 0.0,
        'Mass of the tool the wrist sensor carries, kg: its weight is subtracted from the '
        'reading before the law (tool_gravity.py; 0: none).', 0.0, 1e3),
+    _S('path_speed', 'double', 0.05,
+       'Speed of a path on ~/path whose stamps are all zero, and of the transit to its first '
+       'pose, m/s (<= path_max_speed).', 0.0, 10.0, positive=True),
+    _S('path_max_accel', 'double', 0.5,
+       'Largest acceleration of an untimed path and its transit along the surface; also '
+       'bounds the blend into a path and the stop on an empty path, m/s^2.', 0.0, 1e3,
+       positive=True),
+    _S('path_max_speed', 'double', 0.25,
+       'A timed path with a segment faster than this (along the surface) is refused, m/s.',
+       0.0, 10.0, positive=True),
+    _S('path_max_poses', 'integer', 10000,
+       'A path with more poses than this is refused.', 1, 1000000),
+    _S('path_corner_tolerance', 'double', 0.001,
+       'An untimed path rounds its corners within this distance of the pose (0: it stops '
+       'at each corner instead), m.', 0.0, 1.0),
     _S('tool_com', 'double_array', [],
        "The tool's centre of mass in the sensor frame, m (empty: the origin); it moves only "
        'the torque of the weight, which the law does not use.'),

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -79,24 +79,30 @@ def blend_start(ref: Reference, offset_W: np.ndarray, t: float, t_blend: float,
 
 class BlendedReference:
     """
-    The desired motion of a run: the sine or a held point, blended smoothly on changes.
+    The desired motion of a run: the sine, a held point or a path, blended smoothly on changes.
 
     Times ``tau`` are seconds since the run started. :meth:`start_from` makes the reference
     begin at the arm's position and velocity; :meth:`switch` changes the base (sine
-    parameters, a held point, the normal) while the reference continues from where it
-    was. Both blend into the new base over ``t_blend`` as :func:`blend_start` does. Only the
-    part along the surface is blended; along ``n`` the force loop acts.
+    parameters, a held point, a path, the normal) while the reference continues from where it
+    was. Both blend into the new base over ``t_blend`` (or a duration of their own,
+    ``blend_s``) as :func:`blend_start` does. Only the part along the surface is blended;
+    along ``n`` the force loop acts. A path is any object whose ``rows(tau)`` returns the
+    rows x_d, xdot_d, xddot_d as a new (3, 3) array (it keeps its own clock).
     """
 
     def __init__(self, sine: SineReference, n_W: np.ndarray, t_blend: float) -> None:
         self.sine, self.t_blend = sine, t_blend
         self.P_t = np.eye(3) - np.outer(n_W, n_W)
         self.x_hold_W: np.ndarray | None = None
+        self.path: Any = None
         self.dp_W, self.dv_W, self.tau_b = np.zeros(3), np.zeros(3), 0.0
+        self._tb = t_blend  # the current blend's duration
         self._offsets = np.zeros((2, 3))  # rows dp_W, dv_W
 
     def _base_rows(self, tau: float) -> np.ndarray:
-        """Return the base (the sine, or the held point at rest) as the rows of a new array."""
+        """Return the base (the sine, the held point at rest, the path) as rows of a new array."""
+        if self.path is not None:
+            return self.path.rows(tau)
         if self.x_hold_W is None:
             return self.sine.rows(tau)
         rows = np.zeros((3, 3))
@@ -104,31 +110,41 @@ class BlendedReference:
         return rows
 
     def base(self, tau: float) -> Reference:
-        """Return the reference without the blend: the sine, or the held point at rest."""
+        """Return the reference without the blend: the sine, the held point or the path."""
         rows = self._base_rows(tau)
         return Reference(rows[0], rows[1], rows[2])
 
     def __call__(self, tau: float) -> Reference:
         rows, t = self._base_rows(tau), tau - self.tau_b
-        if not (self.t_blend <= 0.0 or t >= self.t_blend):  # blending (blend_start)
-            rows += _hermite(t, self.t_blend).dot(self._offsets)
+        if not (self._tb <= 0.0 or t >= self._tb):  # blending (blend_start)
+            rows += _hermite(t, self._tb).dot(self._offsets)
         return Reference(rows[0], rows[1], rows[2])
 
-    def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray) -> None:
-        """Blend from the position ``x_W`` and velocity ``xdot_W`` at ``tau``."""
+    def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray,
+                   blend_s: float | None = None) -> None:
+        """Blend from the position ``x_W`` and velocity ``xdot_W`` at ``tau`` over ``blend_s``."""
         b = self.base(tau)
         self.dp_W, self.dv_W = self.P_t @ (x_W - b.x_d_W), self.P_t @ (xdot_W - b.xdot_d_W)
         self._offsets = np.array((self.dp_W, self.dv_W))
         self.tau_b = tau
+        self._tb = self.t_blend if blend_s is None else blend_s
 
     def switch(self, tau: float, *, sine: SineReference | None = None,
-               x_hold_W: np.ndarray | None = None, release: bool = False,
-               n_W: np.ndarray | None = None, t_blend: float | None = None) -> None:
-        """Change the base at ``tau`` and continue from the current reference."""
+               x_hold_W: np.ndarray | None = None, path: Any = None, release: bool = False,
+               n_W: np.ndarray | None = None, t_blend: float | None = None,
+               blend_s: float | None = None) -> None:
+        """
+        Change the base at ``tau`` and continue from the current reference.
+
+        ``release`` drops a held point and a path (back to the sine); a held point replaces a
+        path and a path a held point. ``blend_s`` is this blend's duration (default
+        ``t_blend``).
+        """
         now = self(tau)
         self.sine = self.sine if sine is None else sine
-        self.x_hold_W = None if release else (self.x_hold_W if x_hold_W is None else x_hold_W)
+        if release or x_hold_W is not None or path is not None:
+            self.x_hold_W, self.path = x_hold_W, path
         self.t_blend = self.t_blend if t_blend is None else t_blend
         if n_W is not None:
             self.P_t = np.eye(3) - np.outer(n_W, n_W)
-        self.start_from(tau, now.x_d_W, now.xdot_d_W)
+        self.start_from(tau, now.x_d_W, now.xdot_d_W, blend_s)

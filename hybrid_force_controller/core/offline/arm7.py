@@ -13,10 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .engine import Event
 from .scenario import ScenarioConfig
+from ..law.path import follow_basis, PathLimits, plan_path
 from ..model.robot_model import RobotModel
 
-__all__ = ['PANDA_JOINTS', 'PANDA_Q0', 'panda_model', 'panda_scenario', 'panda_urdf_path']
+__all__ = ['PANDA_JOINTS', 'PANDA_Q0', 'panda_model', 'panda_scenario', 'panda_urdf_path',
+           'square_path_event']
 
 PANDA_JOINTS = tuple(f'panda_joint{i}' for i in range(1, 8))
 PANDA_Q0 = (0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8)
@@ -45,3 +48,26 @@ def panda_scenario(model: RobotModel, duration: float = 20.0, **kwargs) -> Scena
                  **kwargs.pop('overrides', {})}
     return ScenarioConfig(k=3000.0, duration=duration, q0=PANDA_Q0,
                           theta_hat0_scale=MASS_ERROR, overrides=overrides, **kwargs)
+
+
+def square_path_event(t: float, side: float, sent: dict | None = None) -> Event:
+    """
+    Return an event that sends an untimed square path at ``t`` (s), as the node would.
+
+    The square of ``side`` (m) lies in the surface's tangent plane, centred on the reference
+    at ``t``, planned from the reference's position and velocity with the runtime's
+    ``path_*`` parameters. ``sent`` (optional) receives the plan and the time.
+    """
+    def follow(rt, plant) -> None:
+        n_W, r = rt.params.law.n, rt.params.runtime
+        x0, v0 = rt.reference(plant.t)[:2]
+        corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]]) * side - side / 2
+        points = x0 + corners @ follow_basis(n_W, rt.model.task_axes).T
+        limits = PathLimits(r.path_speed, r.path_max_accel, r.path_max_speed,
+                            r.path_max_poses, r.path_corner_tolerance)
+        plan = plan_path(points, np.zeros(len(points)), x0, n_W, rt.model.task_axes, limits,
+                         start_v_W=v0)
+        rt.on_path(plan, 1)
+        if sent is not None:
+            sent.update(plan=plan, t=plant.t)
+    return Event(t, follow)

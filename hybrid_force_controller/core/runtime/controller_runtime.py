@@ -45,6 +45,8 @@ from ..config.params import ControllerParams
 from ..law.bumpless import RestartBlend
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
 from ..law.force_reference import ForceRamp
+from ..law.path import PathPlan
+from ..law.reference import Reference
 from ..law.set_validation import SetValidator
 from ..law.stiffness_loop import StiffnessLoop, StiffnessStatus
 from ..model.robot_model import ModelError, RobotModel
@@ -164,15 +166,23 @@ class ControllerRuntime:
         return self._in.last_fault
 
     def on_reference(self, x_d_W: Sequence[float]) -> None:
-        """
-        Hold a user reference point (base frame) instead of the sine, blended in.
-
-        Any later change of a ``ref_*`` parameter (or ``n``) releases it.
-        """
+        """Hold a point (base frame), blended in; a path ends; a ref_*/n change releases it."""
         x = np.asarray(x_d_W, dtype=float)
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
         self._motion.hold(self.run_time, x)
+
+    def on_path(self, plan: PathPlan | None, seq: int = 0) -> None:
+        """
+        Follow a planned path number ``seq`` (law/path.py), blended in (motion.py); None stops.
+
+        Its clock runs only in the force loop in contact (path_run.py); at its end the
+        reference holds the last point. A ``ref_*`` or ``n`` change releases it.
+        """
+        if plan is None:
+            self._motion.stop(self.run_time)
+        else:
+            self._motion.follow(self.run_time, plan, seq)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -204,8 +214,12 @@ class ControllerRuntime:
 
     def desired_position(self, t: float) -> np.ndarray:
         """Return the reference position at time ``t`` on the caller's clock (base frame)."""
+        return self.reference(t).x_d_W
+
+    def reference(self, t: float) -> Reference:
+        """Return the reference at time ``t`` on the caller's clock (a path: at its clock)."""
         t0 = self._clock.t0
-        return self._motion(0.0 if t0 is None else t - t0).x_d_W
+        return self._motion(0.0 if t0 is None else t - t0)
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
@@ -242,6 +256,7 @@ class ControllerRuntime:
         if kind:  # the last tick's force transient or tracking fault
             self._begin(kind, t)
         approach = self._approach_ref(dt_state)
+        self._motion.advance_path(dt_state, self.mode == Mode.RUNNING and touching)
         ref = self._motion(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
@@ -257,7 +272,7 @@ class ControllerRuntime:
         self._observe(t, f_n, out.e, touching)
         tau, saturated = self._limiter(out.tau)
         self.counters['saturated_ticks'] += saturated
-        return self._running_output(tau, out, ref.x_d_W, f_W)
+        return self._running_output(tau, out, ref, f_W)
 
     def _ramp_f_d(self, dt: float) -> None:
         """Move f_d toward a new target (law/force_reference.py); the law feeds its rate."""
@@ -374,6 +389,7 @@ class ControllerRuntime:
             self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
             self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._tau_last)
             self._clock.pause(s.t)  # the reference pauses (_start)
+            self._motion.pause_path()
         self.mode = Mode.SAFE
         fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
@@ -381,16 +397,16 @@ class ControllerRuntime:
         tau, _ = self._limiter(tau)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)
 
-    def _running_output(self, tau: np.ndarray, out: ControlOutput, x_d_W: np.ndarray,
+    def _running_output(self, tau: np.ndarray, out: ControlOutput, ref: Reference,
                         f_W: np.ndarray) -> TickOutput:
         status = (_STATUS[self.mode] if self.mode != Mode.NO_SURFACE else
                   f'surface not found within approach_limit = '
                   f'{self._params.runtime.approach_limit:g} m: holding')
-        return self._output(tau, self.mode, status, f_W, out.kin.p_W, x_d_W, out.e)
+        return self._output(tau, self.mode, status, f_W, out.kin.p_W, ref, out.e)
 
     def _output(self, tau: np.ndarray | None, mode: Mode, status: str,
                 f_W: np.ndarray | None = None, x_W: np.ndarray | None = None,
-                x_d_W: np.ndarray | None = None, e: np.ndarray | None = None) -> TickOutput:
+                ref: Reference | None = None, e: np.ndarray | None = None) -> TickOutput:
         self.mode, self.status = mode, status
         if tau is not None:
             tau = self._bumpless(tau, self._clock.t_tick)
@@ -402,6 +418,7 @@ class ControllerRuntime:
             e_W[self.model.task_index] = e
         if tau is not None and self._cmd_order is not None:
             tau = tau[self._cmd_order]  # (efforts are fresh arrays: none is ever mutated)
-        return TickOutput(tau, mode, x_W, x_W if x_d_W is None else x_d_W, f, self.f_d_W,
+        return TickOutput(tau, mode, x_W, x_W if ref is None else ref.x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
-                          self._stiffness.k_hat)
+                          self._stiffness.k_hat, self._motion.path_progress(),
+                          None if ref is None else ref.xdot_d_W)

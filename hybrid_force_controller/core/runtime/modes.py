@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 
+from .path_run import IDLE, PathProgress
+
 __all__ = ['Mode', 'TickOutput']
 
 
@@ -26,7 +28,9 @@ class TickOutput:
     One tick for the node to publish.
 
     3-D vectors are in the base frame; ``tau`` is in the order of ``params.runtime.joints``, None
-    while waiting; ``k_hat`` is the stiffness estimate, N/m, NaN while unknown.
+    while waiting; ``k_hat`` is the stiffness estimate, N/m, NaN while unknown; ``path`` the
+    progress of a user's path (path_run.py); ``xdot_d_W`` the reference's velocity (None
+    while not running).
     """
 
     tau: np.ndarray | None
@@ -40,3 +44,5 @@ class TickOutput:
     in_contact: bool
     status: str = ''
     k_hat: float = math.nan
+    path: PathProgress = IDLE
+    xdot_d_W: np.ndarray | None = None

@@ -5,7 +5,8 @@ What the tool is asked to do: the reference along the surface, the approach alon
 the tool approaches, presses or starts again from where it is; this says *what* it tracks:
 
 * along the surface, the reference of a run (law/reference.py ``BlendedReference``: the sine,
-  or a held point, blended smoothly on every change);
+  a held point or a user's path (path_run.py, its own clock), blended smoothly on every
+  change);
 * along n, out of contact, the approach (law/approach.py), and at contact the bumpless
   hand-over of what the approach demanded of r into the force loop.
 
@@ -17,12 +18,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .path_run import IDLE, PATH_STOPPED, PathProgress, PathRun
 from ..config.params import ControllerParams
 from ..law.approach import Approach, Handover
 from ..law.control_law import ApproachRef
+from ..law.path import PathPlan, stop_time
 from ..law.reference import BlendedReference, Reference, SineReference
 
 __all__ = ['Motion', 'reference_changed']
+
+_H0_PEAK = 5.78  # the peak of the quintic blend's |H0''| (reference.py _hermite): 10/sqrt(3)
 
 _REFERENCE_FIELDS = ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time')
 
@@ -48,6 +53,8 @@ class Motion:
         self.approach = Approach(0.0, 0.0)
         self.handover = Handover()
         self.r_n = self.rdot_n = 0.0  # the last tick's normal r (m/s) and rdot term (m/s^2)
+        self.path: PathRun | None = None
+        self._last = IDLE  # the progress of the last path released
         self.configure(params)
 
     def configure(self, params: ControllerParams) -> None:
@@ -56,15 +63,71 @@ class Motion:
         self.n_W = params.law.n
         self.n_task = params.law.n[self.task_index]
         self.approach.configure(rt.approach_speed, rt.approach_limit)
+        self.path_max_accel = rt.path_max_accel
 
     def replan(self, params: ControllerParams, tau: float) -> None:
-        """Take a new reference (``ref_*``, ``n``): release a held point, blend from here."""
+        """Take a new reference (``ref_*``, ``n``): release a held point or a path, blend."""
+        self._release()
         self.ref.switch(tau, sine=sine_of(params), release=True, n_W=params.law.n,
                         t_blend=params.runtime.ref_blend_time)
 
-    def hold(self, tau: float, x_W: np.ndarray) -> None:
-        """Hold the point ``x_W`` (base frame) from ``tau`` on, blended in."""
-        self.ref.switch(tau, x_hold_W=x_W)
+    def hold(self, tau: float, x_W: np.ndarray, blend_s: float | None = None) -> None:
+        """Hold the point ``x_W`` (base frame) from ``tau`` on, blended in (a path ends)."""
+        self._release()
+        self.ref.switch(tau, x_hold_W=x_W, blend_s=blend_s)
+
+    # ------------------------------------------------------------------ a user's path
+    def follow(self, tau: float, plan: PathPlan, seq: int) -> None:
+        """
+        Follow ``plan`` from ``tau`` on (its clock starts at rest), blended from the reference.
+
+        The plan starts where the reference, planned from, would stop (law/path.py): the
+        blend is that monotone stop (``stop_time``), lengthened so that a residual offset r
+        (the reference moved on while the plan was made) adds at most ``a_max / 2``.
+        """
+        a_max = self.path_max_accel
+        run = PathRun(plan, seq, a_max)
+        now, start = self.ref(tau), run.rows()
+        dv_W = self.ref.P_t @ now.xdot_d_W
+        T = stop_time(float(np.linalg.norm(dv_W)), a_max)
+        r = float(np.linalg.norm(self.ref.P_t @ (now.x_d_W - start[0]) + 0.5 * T * dv_W))
+        blend = max(T, float(np.sqrt(2.0 * _H0_PEAK * r / a_max)))
+        self._release()
+        self.path = run
+        self.ref.switch(tau, path=run, blend_s=blend)
+
+    def stop(self, tau: float) -> None:
+        """
+        Stop the motion smoothly and hold (an empty path): no jump, no coming back.
+
+        It holds ``x + v T / 2``, blended over T = ``stop_time`` (law/path.py): the velocity
+        falls monotonically, decelerating at most ``path_max_accel``.
+        """
+        now = self.ref(tau)
+        v_W = self.ref.P_t @ now.xdot_d_W
+        T = stop_time(float(np.linalg.norm(v_W)), self.path_max_accel)
+        self.hold(tau, now.x_d_W + 0.5 * T * v_W, blend_s=T)
+
+    def _release(self) -> None:
+        """Forget the path being followed (its progress says ``stopped`` unless done)."""
+        run, self.path = self.path, None
+        if run is not None:
+            p = run.progress()
+            self._last = p if run.done else p._replace(state=PATH_STOPPED)
+
+    def advance_path(self, dt: float, go: bool) -> None:
+        """Advance the path's clock by ``dt`` (``go``: running in contact)."""
+        if self.path is not None:
+            self.path.advance(dt, go)
+
+    def pause_path(self) -> None:
+        """Stand the path still (safe mode)."""
+        if self.path is not None:
+            self.path.pause()
+
+    def path_progress(self) -> PathProgress:
+        """Return the current (or the last) path's progress."""
+        return self._last if self.path is None else self.path.progress()
 
     def __call__(self, tau: float) -> Reference:
         """Return the reference along the surface at ``tau``."""

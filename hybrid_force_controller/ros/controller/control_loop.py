@@ -10,9 +10,11 @@ services and validation, diagnostics, telemetry, logging, lifecycle) runs on the
 controller node's thread, and meets this one only through three lock-free hand-overs:
 
 * to the loop: :meth:`submit` (a validated parameter set, installed at the next tick
-  boundary), :meth:`restart`, :meth:`hold_reference` (``deque(maxlen=1)``: the newest wins);
+  boundary), :meth:`restart`, :meth:`hold_reference`, :meth:`follow_path` (a path planned
+  on the node's thread) (``deque(maxlen=1)``: the newest wins);
 * from the loop: :attr:`telemetry` (every ``telemetry_every``-th tick's output, which the
-  node publishes every 10 ms), :attr:`events` (mode changes and
+  node publishes every 10 ms), :attr:`latest` (the last commanding tick's output, for the
+  path's progress and the markers), :attr:`events` (mode changes and
   callback errors, logged by the node), :attr:`errors` (callback errors by kind) and
   :attr:`holds` (how long each callback held the thread,
   :class:`~hybrid_force_controller.core.runtime.loop_stats.HoldStats`).
@@ -92,6 +94,8 @@ class ControlLoop:
         self._restart: deque = deque(maxlen=1)
         self._reference: deque = deque(maxlen=1)
         self._tare: deque = deque(maxlen=1)
+        self._path: deque = deque(maxlen=1)
+        self.latest: tuple | None = None  # (TickOutput, stamp ns) of the last commanding tick
         self._mode = None
         self._t_state, self._t_tick = 0.0, -1.0
         self.node = Node(f'_{owner.get_name()}_rt', namespace=owner.get_namespace(),
@@ -138,6 +142,10 @@ class ControlLoop:
     def hold_reference(self, x_d_W: Sequence[float]) -> None:
         """Hold a user reference point from the next tick on."""
         self._reference.append(tuple(x_d_W))
+
+    def follow_path(self, plan: Any, seq: int) -> None:
+        """Follow a planned path (None: stop and hold) from the next tick on."""
+        self._path.append((plan, seq))
 
     def stop(self, timeout: float = 5.0) -> None:
         """Stop the thread and destroy the loop's node (lifecycle cleanup, shutdown)."""
@@ -197,6 +205,8 @@ class ControlLoop:
             self.runtime.on_reference(self._reference.popleft())
         if self._tare:
             self.runtime.start_tare(self._tare.popleft())
+        if self._path:
+            self.runtime.on_path(*self._path.popleft())
 
     def _on_joint_state(self, raw: bytes) -> None:
         msg = read_joint_state(raw)
@@ -247,6 +257,7 @@ class ControlLoop:
             self.effort.publish(out.tau)
             self.delay.record(self._t_tick + (time.perf_counter() - t_start) - self._t_state)
             self.commands.count += 1
+            self.latest = (out, now_ns)
             self._k_tick += 1
             if self.telemetry_every and self._k_tick % self.telemetry_every == 0:
                 self.telemetry.append((out, now_ns))

@@ -15,9 +15,10 @@ thread does everything else (parameter services and validation, lifecycle, diagn
 telemetry, logging). A validated set reaches the loop at its next tick boundary.
 
 Topics are relative, so ``-r __ns:=/arm1`` moves them all (``/diagnostics`` stays absolute):
-subscribes ``joint_states``, ``force_torque_sensor_broadcaster/wrench``, ``~/reference``;
-publishes ``effort_controller/commands`` every tick and ``~/x``, ``~/x_desired``,
-``~/wrench``, ``~/wrench_desired``, ``~/error``, ``~/theta_hat`` at ``telemetry_rate_hz``.
+subscribes ``joint_states``, ``force_torque_sensor_broadcaster/wrench``, ``~/reference``,
+``~/path``; publishes ``effort_controller/commands`` every tick, ``~/x``, ``~/x_desired``,
+``~/wrench``, ``~/wrench_desired``, ``~/error``, ``~/theta_hat`` at ``telemetry_rate_hz``,
+and ``~/path_status``, ``~/path_progress``, ``~/markers`` (path_topics.py).
 The names are resolved here (remappings included) and the control thread's node uses them
 as they are. QoS: :mod:`.qos`. ``/diagnostics`` (1 Hz) adds the input-to-command delay
 (joint-state stamp to effort published), the tick period, the commands/s and how long each
@@ -37,6 +38,7 @@ from std_msgs.msg import String
 
 from .control_loop import ControlLoop, LoopSettings
 from .diagnostics import controller_status, EVENT_COUNTERS, loop_report
+from .path_topics import PathTopics
 from .task_interface import TaskInterface
 from .telemetry import ControllerOutputs, TOPIC_COMMANDS
 from ..common.model_source import expand_description, missing_description_hint
@@ -205,6 +207,7 @@ class ControllerNode(LifecycleNode):
         self._ran = False  # a fresh runtime starts from the arm by itself
         self.outputs = ControllerOutputs(self, self.model.base_link, self.model.theta_names)
         self.task = TaskInterface(self)
+        self.paths = PathTopics(self, self.model.base_link, self._guarded)
         # a full collection holds the GIL (300 ms seen): before the control thread runs
         gc.collect()
         gc.freeze()  # the start-up heap is never scanned again: shorter collector passes
@@ -248,6 +251,7 @@ class ControllerNode(LifecycleNode):
             self.task = None
         if self.runtime is not None:
             self.outputs.destroy()
+            self.paths.destroy()
         self.runtime = self.model = self.params = None
         self.state_label = 'unconfigured'
         return _OK

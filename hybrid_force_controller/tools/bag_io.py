@@ -29,8 +29,9 @@ from .analysis import align, AnalysisError, RunLog
 from ..core.runtime.contact import CONTACT_FORCE_MIN_N, in_contact
 
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
-           'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
+           'LATCHED_TOPICS', 'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
+           'TOPIC_LINK_MASSES',
            'TOPIC_PATH_STATUS', 'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH',
            'TOPIC_WRENCH_DESIRED', 'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
@@ -47,6 +48,7 @@ TOPIC_DIAGNOSTICS = '/diagnostics'
 TOPIC_CONTACT_WRENCH = '/sim/contact_wrench'
 TOPIC_STIFFNESS_ESTIMATE = '/hybrid_force_controller/stiffness_estimate'
 TOPIC_PATH_STATUS = '/hybrid_force_controller/path_status'
+TOPIC_LINK_MASSES = '/sim/link_masses'  # the sim's true masses: transient local, once
 
 _POINT = 'geometry_msgs/msg/PointStamped'
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
@@ -66,7 +68,10 @@ RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_CONTACT_WRENCH, _WRENCH),
     (TOPIC_STIFFNESS_ESTIMATE, 'std_msgs/msg/Float64'),
     (TOPIC_PATH_STATUS, 'std_msgs/msg/String'),
+    (TOPIC_LINK_MASSES, _ARRAY),
 ]
+# published once, transient local: a recorder that joins later still gets them
+LATCHED_TOPICS = (TOPIC_LINK_MASSES,)
 REQUIRED_TOPICS = (TOPIC_X, TOPIC_X_DESIRED, TOPIC_WRENCH, TOPIC_WRENCH_DESIRED,
                    TOPIC_THETA_HAT)
 
@@ -210,6 +215,8 @@ def _value(topic: str, msg: Any) -> Any:
         return float(msg.data)
     if topic == TOPIC_PATH_STATUS:  # 1: a path is being followed
         return 1.0 if msg.data == 'running' else 0.0
+    if topic == TOPIC_LINK_MASSES:
+        return np.array(msg.data, dtype=float)
     if topic == TOPIC_THETA_HAT:
         label = msg.layout.dim[0].label if len(msg.layout.dim) else ''
         return np.array(msg.data, dtype=float), label
@@ -228,7 +235,7 @@ def _read_series(bag_path: Path) -> dict[str, _Series]:
 
     """
     wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE,
-              TOPIC_PATH_STATUS)
+              TOPIC_PATH_STATUS, TOPIC_LINK_MASSES)
     try:
         with AnyReader([bag_path], default_typestore=TYPESTORE) as reader:
             if reader.message_count == 0 or not reader.connections:
@@ -321,6 +328,14 @@ def _path_running(series: _Series | None, x: _Series) -> np.ndarray | None:
     return running > 0.5
 
 
+def _true_masses(series: _Series | None, theta_hat: np.ndarray) -> np.ndarray | None:
+    """Return the sim's true link masses when they match theta_hat's size (else None)."""
+    if series is None or not series.values:
+        return None
+    masses = series.values[-1]
+    return masses if masses.shape == (theta_hat.shape[1],) else None
+
+
 def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
     """Return the unit normal from the largest desired force sample."""
     norms = np.linalg.norm(f_d_W, axis=1)
@@ -345,7 +360,9 @@ def load_run(bag_path: str | Path,
         minimum force, ``f`` the true contact force (``/sim/contact_wrench``) when
         recorded, else the measured one; the offline ``paper`` run uses the same test.
         ``k_hat`` is the recorded stiffness estimate (None without the topic),
-        ``path_running`` whether ``~/path_status`` said ``running`` (None without it).
+        ``path_running`` whether ``~/path_status`` said ``running`` (None without it),
+        ``theta_true`` the sim's link masses (``/sim/link_masses``) when theta_hat has as
+        many entries (the ``link_masses`` parameter set).
 
     Returns
     -------
@@ -380,6 +397,7 @@ def load_run(bag_path: str | Path,
                                            for f in f_contact_n], dtype=bool),
                       f_true_W=f_true_W,
                       k_hat=_stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x),
-                      path_running=_path_running(series.get(TOPIC_PATH_STATUS), x))
+                      path_running=_path_running(series.get(TOPIC_PATH_STATUS), x),
+                      theta_true=_true_masses(series.get(TOPIC_LINK_MASSES), theta_hat))
     except AnalysisError as exc:
         raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

@@ -44,7 +44,6 @@ from .tare import Tare
 from ..config.params import ControllerParams
 from ..law.bumpless import RestartBlend
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
-from ..law.force_reference import ForceRamp
 from ..law.path import PathPlan
 from ..law.reference import Reference
 from ..law.set_validation import SetValidator
@@ -74,7 +73,6 @@ class ControllerRuntime:
         self._limiter = EffortLimiter(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
         self._motion = Motion(params, model.task_index)
-        self._f_d = ForceRamp(params.law.f_d, params.runtime.f_d_rate)
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self.validator = SetValidator(model)
@@ -133,9 +131,7 @@ class ControllerRuntime:
         self._motion.configure(params)
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
-        self._f_d.configure(params.law.f_d, rt.f_d_rate)  # a new f_d is ramped to
-        self.ctrl.set_force_setpoint(self._f_d.value, self._f_d.fdot)
-        self.f_d_W = self._f_d.value * params.law.n
+        self.ctrl.set_force_setpoint(self._motion.force.value, self._motion.force.fdot)
 
     # ------------------------------------------------------------------ inputs
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
@@ -196,6 +192,11 @@ class ControllerRuntime:
         return -math.inf if self._in.state is None else self._in.state.t
 
     @property
+    def f_d_W(self) -> np.ndarray:
+        """Return the desired force f_d n, base frame (f_d ramped to a new value: motion.py)."""
+        return self._motion.f_d_W
+
+    @property
     def theta_hat(self) -> np.ndarray:
         return self.ctrl.theta_hat
 
@@ -237,24 +238,13 @@ class ControllerRuntime:
         if stale:
             return self._safe(f_W, stale, t)
         dt_state, dt_int = self._state_step(stalled or self._restarted)
-        if self._f_d.value != self._f_d.target:
-            self._ramp_f_d(dt_state)
+        if self._motion.force_ramping:
+            self.ctrl.set_force_setpoint(*self._motion.force_step(dt_state))
         f_n = float(self._params.law.n.dot(f_W))
         touching = self._contact.update(f_n, self.ctrl.f_d, self._in.state.t)
         if touching and self._in.tare is not None:
             self._in.tare.abort('the tool touched the surface during the tare')
-        if self.mode in (Mode.WAITING, Mode.SAFE):
-            if self._restarted:
-                self._restarted = False
-                self._begin('restart', t)
-            self._start(touching)
-        else:
-            self._switch(touching, f_W, t)
-            if stalled:  # the reference starts again from the arm
-                self._blend_from_arm()
-        kind = self.recovery.triggered()
-        if kind:  # the last tick's force transient or tracking fault
-            self._begin(kind, t)
+        self._transitions(touching, stalled, f_W, t)
         approach = self._approach_ref(dt_state)
         self._motion.advance_path(dt_state, self.mode == Mode.RUNNING and touching)
         ref = self._motion(self.run_time)
@@ -274,11 +264,20 @@ class ControllerRuntime:
         self.counters['saturated_ticks'] += saturated
         return self._running_output(tau, out, ref, f_W)
 
-    def _ramp_f_d(self, dt: float) -> None:
-        """Move f_d toward a new target (law/force_reference.py); the law feeds its rate."""
-        f_d = self._f_d.step(dt)
-        self.ctrl.set_force_setpoint(f_d, self._f_d.fdot)
-        self.f_d_W = f_d * self._params.law.n
+    def _transitions(self, touching: bool, stalled: bool, f_W: np.ndarray, t: float) -> None:
+        """Change mode on contact, a (re)start or a stall; begin the episodes they start."""
+        if self.mode in (Mode.WAITING, Mode.SAFE):
+            if self._restarted:
+                self._restarted = False
+                self._begin('restart', t)
+            self._start(touching)
+        else:
+            self._switch(touching, f_W, t)
+            if stalled:  # the reference starts again from the arm
+                self._blend_from_arm()
+        kind = self.recovery.triggered()
+        if kind:  # the last tick's force transient or tracking fault
+            self._begin(kind, t)
 
     def _state_step(self, gap: bool) -> tuple[float, float]:
         """Return the time since the last integrated state and the part to integrate (RunClock)."""

@@ -8,7 +8,8 @@ the tool approaches, presses or starts again from where it is; this says *what* 
   a held point or a user's path (path_run.py, its own clock), blended smoothly on every
   change);
 * along n, out of contact, the approach (law/approach.py), and at contact the bumpless
-  hand-over of what the approach demanded of r into the force loop.
+  hand-over of what the approach demanded of r into the force loop;
+* the force the tool presses with, f_d, ramped to a new value (law/force_reference.py).
 
 It keeps the last tick's normal part of r and rdot (``r_n``, ``rdot_n``): an approach starts
 with the velocity the tool had, and the hand-over fades the gap to the force loop's. Times are
@@ -22,6 +23,7 @@ from .path_run import IDLE, PATH_STOPPED, PathProgress, PathRun
 from ..config.params import ControllerParams
 from ..law.approach import Approach, Handover
 from ..law.control_law import ApproachRef
+from ..law.force_reference import ForceRamp
 from ..law.path import PathPlan, stop_time
 from ..law.reference import BlendedReference, Reference, SineReference
 
@@ -55,6 +57,7 @@ class Motion:
         self.r_n = self.rdot_n = 0.0  # the last tick's normal r (m/s) and rdot term (m/s^2)
         self.path: PathRun | None = None
         self._last = IDLE  # the progress of the last path released
+        self.force = ForceRamp(params.law.f_d, params.runtime.f_d_rate)  # f_d(t)
         self.configure(params)
 
     def configure(self, params: ControllerParams) -> None:
@@ -64,6 +67,19 @@ class Motion:
         self.n_task = params.law.n[self.task_index]
         self.approach.configure(rt.approach_speed, rt.approach_limit)
         self.path_max_accel = rt.path_max_accel
+        self.force.configure(params.law.f_d, rt.f_d_rate)  # a new f_d is ramped to
+        self.f_d_W = self.force.value * params.law.n  # the desired force, base frame
+
+    @property
+    def force_ramping(self) -> bool:
+        """Say whether f_d is still on its way to a new value."""
+        return self.force.value != self.force.target
+
+    def force_step(self, dt: float) -> tuple[float, float]:
+        """Advance f_d ``dt`` s toward its target (law/force_reference.py): f_d, its rate."""
+        f_d = self.force.step(dt)
+        self.f_d_W = f_d * self.n_W
+        return f_d, self.force.fdot
 
     def replan(self, params: ControllerParams, tau: float) -> None:
         """Take a new reference (``ref_*``, ``n``): release a held point or a path, blend."""

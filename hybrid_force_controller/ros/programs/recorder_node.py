@@ -17,10 +17,10 @@ import sys
 from typing import Sequence
 
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from ..common.runner import run_node, wants_help
-from ...tools.bag_io import BagWriter, RECORD_TOPICS
+from ...tools.bag_io import BagWriter, LATCHED_TOPICS, RECORD_TOPICS
 
 __all__ = ['BagRecorder', 'main', 'message_class', 'relative']
 
@@ -62,14 +62,17 @@ class BagRecorder(Node):
                  node_name: str = 'bag_recorder', depth: int = 1000, **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         resolved = []
         for topic, msgtype in topics:
             name = self.resolve_topic_name(relative(topic))
             resolved.append((name, msgtype))
         self.writer = BagWriter(bag_path, resolved)
         for name, msgtype in resolved:
-            self.create_subscription(message_class(msgtype), name,
-                                     partial(self.record, name), qos, raw=True)
+            latch = any(name.endswith(t) for t in LATCHED_TOPICS)  # under any namespace
+            self.create_subscription(message_class(msgtype), name, partial(self.record, name),
+                                     latched if latch else qos, raw=True)
         self.get_logger().info(f'recording {len(topics)} topics to {self.writer.path}')
 
     def record(self, topic: str, raw_cdr: bytes) -> bool:

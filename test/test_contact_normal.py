@@ -96,7 +96,8 @@ def test_paper_physics_tilted_plane_then_a_cylinder_set_at_run_time(tmp_path):
         tilted = watcher.fresh(sim)
         assert watcher.frame == MODEL.base_link, watcher.frame
         point = _aside(0.0)
-        result = watcher.set_params(surface_shape='cylinder', surface_radius=0.3, surface_point=point)
+        result = watcher.set_params(surface_shape='cylinder', surface_radius=0.3,
+                                    surface_point=point)
         assert result.successful, result.reason
         on_cylinder = watcher.fresh(sim)
         refused = [watcher.set_params(surface_shape='cone'),

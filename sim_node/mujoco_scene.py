@@ -18,9 +18,9 @@ model (the other joints deleted: welded at 0, as the reduced pinocchio model loc
   passes through the surface point with its normal ``n_W`` there (centre ``R n_W`` beyond it,
   environment.py's convention). The mount slides along ``n_W`` of the surface point only, so
   where the local normal is an angle ``phi`` away from it the static stiffness along that normal
-  is ``1 / (1 / k_c + cos^2 phi / k_spring)``: ``k`` at the surface point, at most
-  ``k / (0.2 + 0.8 cos^2 phi)`` (+4.5 % at 20 deg); the shape is fixed at start-up, its radius
-  and pose may change at run time;
+  is ``1 / (1 / k_c + cos^2 phi / k_spring) = k / (0.2 + 0.8 cos^2 phi)``: ``k`` at the surface
+  point, +2.5 % at 10 deg, +10 % at 20 deg; the shape is fixed at start-up, its radius and pose
+  may change at run time;
 * one explicit contact pair, sphere on table top (elliptic cone; friction ``mu`` when
   ``surface_friction`` > 0, else frictionless, condim 1);
 * the pipeline stages it never needs switched off (``UNUSED_STAGES``: islands, mid-phase,

@@ -23,14 +23,14 @@ import math
 from pathlib import Path
 
 from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.environment import Surface
 from hybrid_force_controller.core.offline.simulator import Measurement, SimulatorError
 from hybrid_force_controller.core.runtime.contact import in_contact
 import mujoco
 import numpy as np
 
 from .mujoco_params import MujocoOptions
-from .mujoco_scene import build_scene, check_surface, set_surface
+from .mujoco_scene import build_scene, check_surface, set_surface, surface_shift
 
 # mj_step's integrator after its mj_forward, by opt.integrator (RK4 evaluates the dynamics
 # four times: it keeps the full mj_step)
@@ -47,22 +47,24 @@ class MujocoPlant:
     """
     The arm, tool and surface in MuJoCo, stepped by the caller.
 
-    ``surface`` None starts without contact; ``stiffness`` then sizes the table top for the
-    surface enabled later (run-time stiffness changes: up to 4 times the start-up one).
+    ``surface`` None starts without contact; ``stiffness`` and ``shape`` then size the table top
+    and choose its shape for the surface enabled later (run-time stiffness changes: up to 4 times
+    the start-up one; the shape is the start-up one for good).
     """
 
     def __init__(self, model: RobotModel, urdf: str | Path, opts: MujocoOptions,
-                 surface: ElasticSurface | None, q0: np.ndarray, *, dt: float = 1e-3,
+                 surface: Surface | None, q0: np.ndarray, *, dt: float = 1e-3,
                  substeps: int = 1, theta: np.ndarray | None = None,
                  noise_sigma: float = 0.0, seed: int = 0,
-                 stiffness: float | None = None) -> None:
+                 stiffness: float | None = None, shape: str = 'plane') -> None:
         if substeps < 1:
             raise SimulatorError('substeps must be >= 1')
         self.n, self.substeps = model.n, int(substeps)
         # the stiffness sizes the table top (mujoco_scene.py); without a surface at start-up,
         # the one it will have when enabled
         k0 = surface.k if surface is not None else stiffness or 1.0
-        self.scene = build_scene(urdf, model, opts, dt / self.substeps, k0, theta)
+        shape = surface.shape if surface is not None else shape
+        self.scene = build_scene(urdf, model, opts, dt / self.substeps, k0, theta, shape)
         self.m, self.d = self.scene.model, mujoco.MjData(self.scene.model)
         self.surface = surface
         q0 = np.asarray(q0, dtype=float)
@@ -99,19 +101,29 @@ class MujocoPlant:
         self._f_plate = d.cfrc_ext[sc.plate, 3:6]
 
     @property
-    def surface(self) -> ElasticSurface | None:
+    def surface(self) -> Surface | None:
         """Return the current plane: pose and stiffness; None when contact is disabled."""
         return self._surface
 
     @surface.setter
-    def surface(self, surface: ElasticSurface | None) -> None:
+    def surface(self, surface: Surface | None) -> None:
         set_surface(self.scene, self.d, surface)
         self._surface = surface
         self._forwarded = False  # the table moved: the position stage is stale
 
-    def check_surface(self, surface: ElasticSurface) -> None:
+    def check_surface(self, surface: Surface) -> None:
         """Raise SurfaceError when ``surface`` cannot be set (the sim node validates with it)."""
         check_surface(self.scene, surface)
+
+    def contact_normal(self, p_W: np.ndarray) -> np.ndarray | None:
+        """
+        Return the unit normal into the surface nearest the tool's centre ``p_W``, base frame.
+
+        The surface as it is now: moved on its spring (the deflection the last measure() saw).
+        None without a surface.
+        """
+        s = self._surface
+        return None if s is None else s.normal_at(p_W - surface_shift(self.scene, self.d))
 
     @property
     def q(self) -> np.ndarray:

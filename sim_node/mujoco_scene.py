@@ -12,7 +12,15 @@ model (the other joints deleted: welded at 0, as the reduced pinocchio model loc
 * the surface: a table top ``hfc_surface`` (a 2 m x 2 m box) whose top face passes through the
   surface point, its outward normal ``-n_W`` (``n_W`` points into the surface), mounted on a
   slide joint along that normal with a spring and damper: the surface's stiffness ``k`` (N/m)
-  and ``surface_damping`` (N s/m); gravity-compensated, light (:func:`plate_mass`);
+  and ``surface_damping`` (N s/m); gravity-compensated, light (:func:`plate_mass`). For
+  ``surface_shape`` cylinder or sphere the same sprung mount carries, instead of the box, a
+  cylinder (2 m long, along ``surface_axis``) or a sphere of ``surface_radius`` whose surface
+  passes through the surface point with its normal ``n_W`` there (centre ``R n_W`` beyond it,
+  environment.py's convention). The mount slides along ``n_W`` of the surface point only, so
+  where the local normal is an angle ``phi`` away from it the static stiffness along that normal
+  is ``1 / (1 / k_c + cos^2 phi / k_spring) = k / (0.2 + 0.8 cos^2 phi)``: ``k`` at the surface
+  point, +2.5 % at 10 deg, +10 % at 20 deg; the shape is fixed at start-up, its radius and pose
+  may change at run time;
 * one explicit contact pair, sphere on table top (elliptic cone; friction ``mu`` when
   ``surface_friction`` > 0, else frictionless, condim 1);
 * the pipeline stages it never needs switched off (``UNUSED_STAGES``: islands, mid-phase,
@@ -43,13 +51,15 @@ from pathlib import Path
 
 from hybrid_force_controller.core.config.params import ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.environment import ElasticSurface, SurfaceError
+from hybrid_force_controller.core.offline.environment import (Surface, SURFACE_SHAPES,
+                                                              SurfaceError)
 import mujoco
 import numpy as np
 
 from .mujoco_params import MujocoOptions
 
-__all__ = ['Scene', 'build_scene', 'check_surface', 'plate_mass', 'set_surface']
+__all__ = ['Scene', 'build_scene', 'check_surface', 'plate_mass', 'set_surface',
+           'surface_shift']
 
 TOOL_BODY, TOOL_GEOM, SURFACE_GEOM, FT_SITE = 'hfc_tool', 'hfc_tool_sphere', 'hfc_surface', \
     'hfc_ft_site'
@@ -64,6 +74,11 @@ PLATE_K_RANGE = 4.0  # run-time stiffness changes up to this factor keep it stab
 PLATE_OMEGA_DT_MAX = PLATE_OMEGA_DT * math.sqrt(PLATE_K_RANGE) * (1.0 + 1e-9)
 PLATE_MASS_MIN = 0.01  # kg
 PLATE_HALF_SIZE = (1.0, 1.0, 0.05)  # m: a 2 m x 2 m table top, 10 cm thick
+CYLINDER_HALF_LENGTH = 1.0  # m: a 2 m cylinder, as long as the table top is wide
+ROUND_GEOMS = {'sphere': mujoco.mjtGeom.mjGEOM_SPHERE, 'cylinder': mujoco.mjtGeom.mjGEOM_CYLINDER}
+# the geom in the plate's frame: a cylinder's own axis (z) turned onto the plate's x
+ROUND_GEOM_QUAT = {'sphere': (1.0, 0.0, 0.0, 0.0),
+                   'cylinder': (math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0)}
 # pipeline stages this scene never needs (one explicit contact pair, no actuators, one island):
 # skipping them took a 1 ms Panda step from 147 to 134 us with cold caches (the sim's case)
 _D = mujoco.mjtDisableBit
@@ -94,6 +109,8 @@ class Scene:
     rotated: bool
     o_W: np.ndarray
     damping: float
+    shape: str = 'plane'
+    surface_geom: int = -1
 
 
 def _urdf_text(urdf: str | Path) -> str:
@@ -184,16 +201,22 @@ def _add_tool(spec: mujoco.MjSpec, ee_link: str, opts: MujocoOptions) -> None:
         spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=FT_SITE)
 
 
-def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions, mass: float) -> None:
+def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions, mass: float, shape: str) -> None:
     """Add the plate on its spring (a slide joint along its +z), the contact pair, options."""
     plate = spec.worldbody.add_body(name=SURFACE_BODY, gravcomp=1.0)
     plate.explicitinertial = True
     plate.mass, plate.inertia = mass, [mass * 1e-2] * 3  # the contact's R uses it: compile
     plate.add_joint(name=SURFACE_JOINT, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0.0, 0.0, 1.0],
                     limited=mujoco.mjtLimited.mjLIMITED_FALSE)
-    plate.add_geom(name=SURFACE_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=PLATE_HALF_SIZE,
-                   pos=[0.0, 0.0, -PLATE_HALF_SIZE[2]], contype=0, conaffinity=0,
-                   rgba=[0.5, 0.6, 0.7, 1.0])  # its top face through the body's origin
+    if shape == 'plane':
+        plate.add_geom(name=SURFACE_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=PLATE_HALF_SIZE,
+                       pos=[0.0, 0.0, -PLATE_HALF_SIZE[2]], contype=0, conaffinity=0,
+                       rgba=[0.5, 0.6, 0.7, 1.0])  # its top face through the body's origin
+    else:  # its surface through the body's origin, normal +z there (set_surface sizes it)
+        plate.add_geom(name=SURFACE_GEOM, type=ROUND_GEOMS[shape],
+                       size=[1.0, CYLINDER_HALF_LENGTH, 0.0], pos=[0.0, 0.0, -1.0],
+                       quat=list(ROUND_GEOM_QUAT[shape]), contype=0, conaffinity=0,
+                       rgba=[0.5, 0.6, 0.7, 1.0])
     mu = opts.surface_friction
     spec.add_pair(name='hfc_contact', geomname1=SURFACE_GEOM, geomname2=TOOL_GEOM,
                   condim=3 if mu > 0.0 else 1, friction=[mu, mu, 0.0, 0.0, 0.0],
@@ -207,8 +230,15 @@ def _add_surface(spec: mujoco.MjSpec, opts: MujocoOptions, mass: float) -> None:
 
 
 def build_scene(urdf: str | Path, model: RobotModel, opts: MujocoOptions, timestep: float,
-                k: float, theta: np.ndarray | None = None) -> Scene:
-    """Compile the scene (see the module docstring); ParameterValidationError if it cannot."""
+                k: float, theta: np.ndarray | None = None, shape: str = 'plane') -> Scene:
+    """
+    Compile the scene (see the module docstring); ParameterValidationError if it cannot.
+
+    ``shape`` is the surface's (environment.py's SURFACE_SHAPES), fixed for the scene's life.
+    """
+    if shape not in SURFACE_SHAPES:
+        raise ParameterValidationError(f'surface_shape must be one of {list(SURFACE_SHAPES)}, '
+                                       f'got {shape!r}')
     try:
         spec = mujoco.MjSpec.from_string(_urdf_text(urdf))
     except ValueError as exc:
@@ -222,12 +252,12 @@ def build_scene(urdf: str | Path, model: RobotModel, opts: MujocoOptions, timest
     _scale_masses(spec, model, theta)
     _configure_joints(spec, opts)
     _add_tool(spec, model.end_effector_link, opts)
-    _add_surface(spec, opts, plate_mass(k, timestep))
+    _add_surface(spec, opts, plate_mass(k, timestep), shape)
     m = spec.compile()
-    return _index(m, model, opts)
+    return _index(m, model, opts, shape)
 
 
-def _index(m: mujoco.MjModel, model: RobotModel, opts: MujocoOptions) -> Scene:
+def _index(m: mujoco.MjModel, model: RobotModel, opts: MujocoOptions, shape: str) -> Scene:
     ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.joint_names]
     R_W_root = model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[1]
     o_W = model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[0]
@@ -245,7 +275,8 @@ def _index(m: mujoco.MjModel, model: RobotModel, opts: MujocoOptions) -> Scene:
                  force_adr=int(m.sensor_adr[sensor]), torque_adr=int(m.sensor_adr[torque]),
                  R_W_root=np.array(R_W_root, dtype=float), o_W=np.array(o_W, dtype=float),
                  rotated=not (np.array_equal(R_W_root, np.eye(3)) and not np.any(o_W)),
-                 damping=opts.surface_damping)
+                 damping=opts.surface_damping, shape=shape,
+                 surface_geom=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, SURFACE_GEOM))
 
 
 def plate_mass(k: float, timestep: float) -> float:
@@ -253,8 +284,12 @@ def plate_mass(k: float, timestep: float) -> float:
     return max(PLATE_MASS_MIN, k * (timestep / PLATE_OMEGA_DT) ** 2)
 
 
-def check_surface(scene: Scene, surface: ElasticSurface) -> None:
+def check_surface(scene: Scene, surface: Surface) -> None:
     """Raise SurfaceError when the table top sized at start-up cannot take ``surface``."""
+    if surface.shape != scene.shape:
+        raise SurfaceError(f'physics:=mujoco: the surface shape is fixed at start-up (the scene '
+                           f'has a {scene.shape}, not a {surface.shape}); restart the sim with '
+                           'it')
     m = scene.model
     omega_dt = math.sqrt(surface.k / m.body_mass[scene.plate]) * m.opt.timestep
     if omega_dt > PLATE_OMEGA_DT_MAX:
@@ -263,7 +298,7 @@ def check_surface(scene: Scene, surface: ElasticSurface) -> None:
                            'start-up stiffness; restart the sim with it)')
 
 
-def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) -> None:
+def set_surface(scene: Scene, d: mujoco.MjData, surface: Surface | None) -> None:
     """
     Place the plate and set its spring (model); None: no contact at all.
 
@@ -280,7 +315,15 @@ def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) 
     b, j = scene.plate, m.dof_jntid[scene.plate_dof]
     m.body_pos[b] = scene.R_W_root.T @ (surface.x0_W - scene.o_W)
     quat = np.zeros(4)
-    mujoco.mju_quatZ2Vec(quat, -(scene.R_W_root.T @ surface.n_W))  # +z out of the surface
+    if surface.shape == 'cylinder':  # +z out of the surface, +x along the axis
+        _round_geom(scene, surface.radius)
+        z = -(scene.R_W_root.T @ surface.n_W)
+        x = scene.R_W_root.T @ surface.axis_W
+        mujoco.mju_mat2Quat(quat, np.column_stack((x, np.cross(z, x), z)).reshape(-1))
+    else:
+        if surface.shape == 'sphere':
+            _round_geom(scene, surface.radius)
+        mujoco.mju_quatZ2Vec(quat, -(scene.R_W_root.T @ surface.n_W))  # +z out of the surface
     m.body_quat[b] = quat
     k_c = CONTACT_STIFFNESS_RATIO * surface.k
     m.jnt_stiffness[j] = 1.0 / (1.0 / surface.k - 1.0 / k_c)  # in series: k in all
@@ -288,3 +331,20 @@ def set_surface(scene: Scene, d: mujoco.MjData, surface: ElasticSurface | None) 
     c_c = 2.0 * CONTACT_DAMPING_RATIO * math.sqrt(k_c / tran)
     m.pair_solref[0] = [-(1.0 - D_IMPEDANCE) * tran * k_c, -(1.0 - D_IMPEDANCE) * tran * c_c]
     m.dof_damping[scene.plate_dof] = scene.damping
+
+
+def _round_geom(scene: Scene, radius: float) -> None:
+    """Size the sphere or cylinder geom: radius R, its surface through the plate's origin."""
+    m, g = scene.model, scene.surface_geom
+    half = CYLINDER_HALF_LENGTH if scene.shape == 'cylinder' else radius
+    m.geom_size[g, :2] = radius, CYLINDER_HALF_LENGTH
+    m.geom_pos[g] = 0.0, 0.0, -radius
+    m.geom_rbound[g] = math.hypot(radius, CYLINDER_HALF_LENGTH) if scene.shape == 'cylinder' \
+        else radius
+    m.geom_aabb[g] = 0.0, 0.0, 0.0, radius, radius, half  # local frame: centre, half sizes
+
+
+def surface_shift(scene: Scene, d: mujoco.MjData) -> np.ndarray:
+    """Return how far the sprung surface has moved from its rest pose, base frame, m."""
+    b = scene.plate
+    return scene.R_W_root @ (d.xpos[b] - scene.model.body_pos[b])

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.environment import ElasticSurface
+from hybrid_force_controller.core.offline.environment import Surface
 from hybrid_force_controller.core.offline.simulator import ArmSimulator
 import numpy as np
 
@@ -25,7 +25,7 @@ def touch_offset(v: dict[str, Any]) -> float:
 
 
 def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
-               surface: ElasticSurface | None, q0: np.ndarray) -> Any:
+               surface: Surface | None, q0: np.ndarray) -> Any:
     """
     Build the plant of the sim's parameter values ``v`` (SIM_SCHEMA names).
 
@@ -39,4 +39,4 @@ def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
     theta = np.asarray(v['masses'], dtype=float) if v['masses'] else None
     return MujocoPlant(model, urdf, mujoco_options(v), surface, q0, dt=1.0 / v['rate_hz'],
                        substeps=v['substeps'], theta=theta, noise_sigma=v['noise_sigma'],
-                       seed=v['seed'], stiffness=v['stiffness'])
+                       seed=v['seed'], stiffness=v['stiffness'], shape=v['surface_shape'])

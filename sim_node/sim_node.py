@@ -4,7 +4,9 @@
 Publishes ``joint_states``, ``force_torque_sensor_broadcaster/wrench`` (force the
 environment exerts on the tool, in ``tool0``, with noise; published just before the joint
 state of the same step), ``sim/contact_wrench`` (true force the tool exerts on the
-surface, base frame; at ``telemetry_rate_hz``), ``sim/link_masses`` (the true link masses,
+surface, base frame; at ``telemetry_rate_hz``), ``sim/contact_normal`` (the true surface
+normal, into it, nearest the tool, base frame; beside it, while there is a surface),
+``sim/link_masses`` (the true link masses,
 once, transient local), ``robot_description`` (its URDF, transient local, like
 robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
 late callbacks, lost periods, the plant's mean time per step); takes efforts from
@@ -24,8 +26,8 @@ publishes the state and ``/clock`` (equal stamps) and steps once per received co
 0.2 s wall watchdog steps anyway (held or zero effort, brakes before the first command), so
 a lost message cannot deadlock the loop and a controller with ``use_sim_time`` gets its
 first tick. The surface (``stiffness``, ``surface_point``, ``surface_normal``,
-``surface_enabled``) can be set at run time; a set is validated as a whole and swapped in
-between two steps.
+``surface_enabled``, ``surface_shape``: a plane, cylinder or sphere, sim_surface.py) can be set
+at run time; a set is validated as a whole and swapped in between two steps.
 
 Physics (``physics``, read at start-up): ``paper`` (default) integrates the paper's model
 (pinocchio ABA, frictionless spring: core/offline/simulator.py); ``mujoco`` steps MuJoCo compiled
@@ -41,11 +43,10 @@ import time
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import Vector3Stamped, WrenchStamped
 from hybrid_force_controller.core.config.params import MODEL_SCHEMA, ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.offline.environment import (ElasticSurface,
-                                                              sensor_wrench_from_f_W, SurfaceError)
+from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W, Surface
 from hybrid_force_controller.core.offline.simulator import Measurement
 from hybrid_force_controller.ros.common.cdr import RawMessage, read_float64_array
 from hybrid_force_controller.ros.common.loop_timing import GapMeter, RateMeter
@@ -65,21 +66,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, String
 
 from .plants import make_plant, touch_offset
-from .sim_params import HELP_PARAMETERS, SIM_SCHEMA, SURFACE
+from .sim_params import HELP_PARAMETERS, SIM_SCHEMA, SURFACE, UNIT
+from .sim_surface import surface_from_values
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'held_periods', 'main']
 
 WATCHDOG_S = 0.2
-
-
-def _sensor_offset(value: Any) -> np.ndarray | None:
-    """Return ``sensor_offset`` as a finite 3-vector (None: [] or zero), or raise SurfaceError."""
-    offset = np.asarray(value if value else [], dtype=float)
-    if offset.size == 0:
-        return None
-    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-        raise SurfaceError(f'sensor_offset must be [] or 3 finite numbers, got {list(value)}')
-    return offset if np.any(offset) else None
 
 
 def held_periods(t_begin: float, periods: int, dt: float, t_cmd: float, timeout: float) -> int:
@@ -98,7 +90,7 @@ class SimNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('sim', **kwargs)
-        v = declare_schema(self, SIM_SCHEMA, unit=('surface_normal',))
+        v = declare_schema(self, SIM_SCHEMA, unit=UNIT)
         check_choice('executor', v['executor'], EXECUTORS)
         model_values = declare_schema(self, MODEL_SCHEMA)
         urdf = expand_description(model_values['robot_description']) or \
@@ -116,7 +108,7 @@ class SimNode(Node):
         surface, (self.sensor_frozen, self.sensor_offset) = self._surface(v)
         self.sim = make_plant(v, model, urdf, surface, q0)
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],
-                                      self._surface, self._set_surface, unit=('surface_normal',))
+                                      self._surface, self._set_surface, unit=UNIT)
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
         self.command_timeout, self.max_catch_up = v['command_timeout'], v['max_catch_up']
         rate = v['telemetry_rate_hz']
@@ -166,6 +158,7 @@ class SimNode(Node):
         self.ft = RawMessage('wrench_stamped', WrenchStamped(header=Header(
             frame_id=self.tool_frame)))
         self.true = WrenchStamped(header=Header(frame_id=self.base_frame))
+        self.normal = Vector3Stamped(header=Header(frame_id=self.base_frame))
         self.clock_msg = ClockMsg()
         self.n_pub = 0
 
@@ -175,6 +168,7 @@ class SimNode(Node):
                                             'force_torque_sensor_broadcaster/wrench',
                                             STATE_OUT_QOS)
         self.pub_true = self.create_publisher(WrenchStamped, 'sim/contact_wrench', DEFAULT_QOS)
+        self.pub_normal = self.create_publisher(Vector3Stamped, 'sim/contact_normal', DEFAULT_QOS)
         self.pub_clock = (self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
                           if self.lockstep else None)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
@@ -201,29 +195,12 @@ class SimNode(Node):
                                                 DESCRIPTION_QOS)
         self.pub_masses.publish(Float64MultiArray(data=[float(m) for m in masses]))
 
-    def _surface(self, v: dict[str, Any]) -> tuple[ElasticSurface | None, tuple]:
-        """
-        Build the surface the values describe (None when disabled) and the sensor's faults.
-
-        They are ``sensor_frozen`` and ``sensor_offset`` (a 3-vector, N, or None for none);
-        SurfaceError when a value is bad.
-        """
-        if not isinstance(v['stiffness'], float) or not all(
-                isinstance(v[k], bool) for k in ('surface_enabled', 'sensor_frozen')):
-            raise SurfaceError('stiffness must be a number, surface_enabled and sensor_frozen '
-                               'bools')
-        surface = ElasticSurface.create(v['stiffness'], v['surface_point'] or self.p0_W,
-                                        v['surface_normal'])
-        if not v['surface_point'] and self.touch_offset:  # touching the sphere tool
-            surface = ElasticSurface.create(surface.k, self.p0_W + self.touch_offset
-                                            * surface.n_W, surface.n_W)
+    def _surface(self, v: dict[str, Any]) -> tuple[Surface | None, tuple]:
+        """Build the surface and the sensor's faults of ``v`` (sim_surface.py; SurfaceError)."""
         check = getattr(getattr(self, 'sim', None), 'check_surface', None)  # MuJoCo's limits
-        if check is not None:
-            check(surface)
-        return (surface if v['surface_enabled'] else None), (v['sensor_frozen'],
-                                                             _sensor_offset(v['sensor_offset']))
+        return surface_from_values(v, self.p0_W, self.touch_offset, check)
 
-    def _set_surface(self, values: tuple[ElasticSurface | None, tuple]) -> None:
+    def _set_surface(self, values: tuple[Surface | None, tuple]) -> None:
         """Swap the surface in; the contact torque measure() cached for the old one is dropped."""
         self.sim.surface, (self.sensor_frozen, self.sensor_offset) = values
         self.sim._tau_c = None
@@ -354,12 +331,22 @@ class SimNode(Node):
             force.x, force.y, force.z = (float(c) for c in meas.f_true_W)
             true.header.stamp = stamp
             self.pub_true.publish(true)
+            self._publish_normal(meas.p_W, stamp)
         self.n_pub += 1
         self.state_gaps.mark(time.monotonic())
         if self.pub_clock is not None:
             self.clock_msg.clock = stamp or Time(nanoseconds=t_ns).to_msg()
             self.pub_clock.publish(self.clock_msg)
         self.t_pub = time.monotonic()
+
+    def _publish_normal(self, p_W: np.ndarray, stamp: Any) -> None:
+        """Publish the true surface normal (into it) nearest the tool; nothing without one."""
+        n_W = self.sim.contact_normal(p_W)
+        if n_W is not None:
+            v = self.normal.vector
+            v.x, v.y, v.z = (float(c) for c in n_W)
+            self.normal.header.stamp = stamp
+            self.pub_normal.publish(self.normal)
 
     def _on_diagnostics(self) -> None:
         stamp = (Time(nanoseconds=round(self.sim.t * 1e9)) if self.lockstep

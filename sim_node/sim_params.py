@@ -12,10 +12,11 @@ from hybrid_force_controller.ros.common.node_params import (CPU_AFFINITY_SPEC, E
 
 from .mujoco_params import MUJOCO_SCHEMA
 
-__all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE']
+__all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE', 'UNIT']
 
 SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
-           'sensor_frozen', 'sensor_offset')
+           'surface_shape', 'surface_radius', 'surface_axis', 'sensor_frozen', 'sensor_offset')
+UNIT = ('surface_normal', 'surface_axis')  # normalised on set
 SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
     ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
@@ -24,6 +25,14 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
      'Point of the undeformed surface, base frame, m ([] = tool start: touching, 0 N).', {}),
     ('surface_normal', 'double_array', [0.0, -1.0, 0.0], 'Surface normal (into it), base.', {}),
     ('surface_enabled', 'bool', True, 'false: no surface (free motion, e.g. contact loss).', {}),
+    ('surface_shape', 'string', 'plane', "'plane', 'cylinder' or 'sphere': a convex workpiece "
+     'pressed from outside, touched at surface_point with its normal surface_normal there '
+     '(centre surface_radius beyond it, along surface_normal); a spring along the local '
+     'normal. physics:=mujoco: fixed at start-up.', {}),
+    ('surface_radius', 'double', 0.5, 'Radius of the cylinder or sphere, m.', 1e-3, 1e3, {}),
+    ('surface_axis', 'double_array', [], "The cylinder's axis, base frame: perpendicular to "
+     'surface_normal (within 1 deg; then made exactly so) ([] = the base axis z, x or y most '
+     'perpendicular to it).', {}),
     ('sensor_frozen', 'bool', False, 'true: the F/T sensor repeats its last reading (a frozen '
      'sensor, for fault injection).', {}),
     ('sensor_offset', 'double_array', [], "The F/T sensor's bias, N, sensor frame: added to "
@@ -39,7 +48,8 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
     ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
      'integrates (older time is dropped and counted).', 1, 100000, {}),
-    ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench, Hz (0: off).',
+    ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench and '
+     'sim/contact_normal, Hz (0: off).',
      0.0, 1e5, {}),
 )) + MUJOCO_SCHEMA + (EXECUTOR_SPEC, THREAD_PRIORITY_SPEC, CPU_AFFINITY_SPEC)
 
@@ -50,6 +60,8 @@ HELP_PARAMETERS = (
     ('rate_hz', 'plant step rate (default 1000)'),
     ('masses', "true link masses, kg ([] = the URDF's)"),
     ('stiffness, surface_*', 'the elastic surface (settable at run time)'),
+    ('surface_shape', "'plane' (default), 'cylinder' or 'sphere' (surface_radius, "
+     'surface_axis)'),
     ('sensor_frozen', 'true: the F/T sensor repeats its last reading (settable)'),
     ('sensor_offset', "the F/T sensor's bias, N, sensor frame (settable)"),
     ('noise_sigma, seed', 'force sensor noise'),

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import re
 
+from hybrid_force_controller.core.config.groups import NormalConfig
 from hybrid_force_controller.core.config.params import (build_params, CONTROLLER_SCHEMA,
                                                         ControllerParams, LawGains,
                                                         ParameterValidationError, RuntimeConfig,
@@ -40,7 +41,7 @@ def test_schema_names_are_unique_and_match_the_dataclasses():
     names = [s.name for s in CONTROLLER_SCHEMA]
     assert len(names) == len(set(names))
     assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime', 'stiffness',
-                                                          'recovery'}
+                                                          'recovery', 'normal'}
     law = {s.name for s in CONTROLLER_SCHEMA if s.group == 'law'}
     runtime = {s.name for s in CONTROLLER_SCHEMA if s.group == 'runtime'}
     recovery = {s.name for s in CONTROLLER_SCHEMA if s.group == 'recovery'}
@@ -48,6 +49,9 @@ def test_schema_names_are_unique_and_match_the_dataclasses():
     assert runtime == set(RuntimeConfig.__dataclass_fields__)
     assert recovery - {'episode_recovery'} | {'enabled'} == set(
         RecoveryConfig.__dataclass_fields__)
+    normal = {s.name for s in CONTROLLER_SCHEMA if s.group == 'normal'}
+    assert {n.removeprefix('n_') for n in normal - {'n_estimation'}} | {'enabled'} == set(
+        NormalConfig.__dataclass_fields__)
 
 
 @pytest.mark.parametrize('spec', CONTROLLER_SCHEMA, ids=lambda s: s.name)

@@ -1,17 +1,18 @@
 """
-The frozen settings of the stiffness estimate and of the recovery from stalls (pure Python).
+The frozen settings of the stiffness and normal estimates and of the recovery (pure Python).
 
-They are groups of the one schema (schema.py, groups ``stiffness`` and ``recovery``), built by
-params.py; the estimator (law/stiffness.py) and the episodes (runtime/recovery.py) take them.
-Each validates itself and raises its typed error naming the field.
+They are groups of the one schema (schema.py, groups ``stiffness``, ``normal`` and
+``recovery``), built by params.py; the estimators (law/stiffness.py, law/normal_estimate.py)
+and the episodes (runtime/recovery.py) take them. Each validates itself and raises its typed
+error naming the field.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
 import math
 
-__all__ = ['RecoveryConfig', 'RecoveryConfigError', 'StiffnessConfig', 'StiffnessConfigError',
-           'StiffnessError']
+__all__ = ['NormalConfig', 'NormalConfigError', 'NormalEstimateError', 'RecoveryConfig',
+           'RecoveryConfigError', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError']
 
 
 class StiffnessError(ValueError):
@@ -144,3 +145,59 @@ class RecoveryConfig:
                                       (self.calm_error, self.transient_error, 'error')):
             if transient > 0.0 and not calm < transient:
                 raise RecoveryConfigError(f'calm_{name} must be below transient_{name}')
+
+
+class NormalEstimateError(ValueError):
+    """The normal estimator was called with an argument it cannot use (e.g. ``dt <= 0``)."""
+
+
+class NormalConfigError(NormalEstimateError):
+    """A normal-estimator setting is rejected; the message names it and says why."""
+
+
+@dataclass(frozen=True)
+class NormalConfig:
+    """
+    Validated settings of the surface-normal estimate (law/normal_estimate.py, group ``normal``).
+
+    Attributes
+    ----------
+    enabled : the controller uses n_hat (``n`` is only the initial guess); False: the paper's
+        fixed ``n``.
+    rate_limit : largest rotation rate of n_hat, rad/s (docs/design.md, "A moving normal":
+        below ``(sqrt(lambda1^2 + 20 sigma) - lambda1) / 10``, ``sigma = lambda1^2 - 2 lambda2
+        k_max``, checked by params.py; 0.5 rad/s is 0.6 of the bound without the feed-forward
+        of dS/dt for the Panda, 1/12 of the bound with it at the default gains).
+    time_constant : time constant with which n_hat follows the measured normal, s.
+    force_floor : the measurement is used only above this contact force, N.
+    speed_floor : ... and only while sliding faster than this along the surface, m/s.
+    friction_removal : remove the kinetic friction mu_hat |f_perp| along the velocity.
+    friction_time_constant : time constant of the friction coefficient mu_hat, s of sliding.
+    velocity_fusion : weight in [0, 1] of the constraint n_hat perpendicular to the velocity
+        (0: off; 1: the measured force's component along the velocity is removed entirely).
+
+    """
+
+    enabled: bool = False
+    rate_limit: float = 0.5
+    time_constant: float = 0.1
+    force_floor: float = 0.5
+    speed_floor: float = 0.01
+    friction_removal: bool = True
+    friction_time_constant: float = 0.5
+    velocity_fusion: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ('enabled', 'friction_removal'):
+            if not isinstance(getattr(self, name), bool):
+                raise NormalConfigError(f'{name} must be a bool, got {getattr(self, name)!r}')
+        for name in ('rate_limit', 'time_constant', 'force_floor', 'speed_floor',
+                     'friction_time_constant', 'velocity_fusion'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise NormalConfigError(f'{name} must be a number, got {value!r}')
+            if name == 'velocity_fusion' and not 0.0 <= value <= 1.0:
+                raise NormalConfigError(f'velocity_fusion must be in [0, 1], got {value}')
+            if not (math.isfinite(value) and (value > 0.0 or name == 'velocity_fusion')):
+                raise NormalConfigError(f'{name} must be finite and > 0, got {value}')
+            object.__setattr__(self, name, float(value))

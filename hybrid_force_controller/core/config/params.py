@@ -6,10 +6,11 @@ here); the ROS node declares them from :data:`CONTROLLER_SCHEMA` and ``config/*.
 overrides values. :func:`build_params` validates a full set once and freezes it into
 :class:`ControllerParams`: the control law's gains (:class:`LawGains`, eqs. (5), (11),
 (26), (29) of [1]), the runtime's configuration (:class:`RuntimeConfig`: rate, limits,
-filter, reference, timeouts, approach, sensor plausibility, tool mass, a user's path) and the
-online stiffness estimate's (:class:`~.groups.StiffnessConfig`, group ``stiffness``) and the
-recovery from stalls and drops (:class:`~.groups.RecoveryConfig`, group ``recovery``). Pure
-Python + numpy.
+filter, reference, timeouts, approach, sensor plausibility, tool mass, the sensor's offset, a
+user's path) and the online stiffness estimate's (:class:`~.groups.StiffnessConfig`, group
+``stiffness``), the recovery from stalls and drops (:class:`~.groups.RecoveryConfig`, group
+``recovery``) and the surface-normal estimate's (:class:`~.groups.NormalConfig`, group
+``normal``). Pure Python + numpy.
 """
 from __future__ import annotations
 
@@ -20,13 +21,15 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .groups import RecoveryConfig, RecoveryConfigError, StiffnessConfig, StiffnessConfigError
-from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, ParamSpec, RECOVERY_FIELDS
+from .groups import (NormalConfig, NormalConfigError, RecoveryConfig, RecoveryConfigError,
+                     StiffnessConfig, StiffnessConfigError)
+from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, NORMAL_FIELDS, ParamSpec, RECOVERY_FIELDS
 from .schema import STIFFNESS_FIELDS
 
 __all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'LawGains', 'ParamSpec',
            'ParameterValidationError', 'RuntimeConfig', 'build_params', 'check_stability',
-           'check_stability_estimated', 'schema_defaults', 'STIFFNESS_FIELDS']
+           'check_stability_estimated', 'normal_rate_bound', 'schema_defaults',
+           'STIFFNESS_FIELDS']
 
 
 class ParameterValidationError(ValueError):
@@ -96,13 +99,15 @@ class ControllerParams:
     """
     One validated, frozen parameter set.
 
-    The law's gains, the runtime's configuration, the stiffness estimate's and the recovery's.
+    The law's gains, the runtime's configuration, the stiffness estimate's, the recovery's and
+    the normal estimate's.
     """
 
     law: LawGains
     runtime: RuntimeConfig
     stiffness: StiffnessConfig
     recovery: RecoveryConfig = RecoveryConfig()
+    normal: NormalConfig = NormalConfig()
 
 
 def schema_defaults() -> dict[str, Any]:
@@ -304,7 +309,38 @@ def build_params(model: Any, values: Mapping[str, Any] | None = None) -> Control
     s = {name: _scalar(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'double'}
     s.update({name: _bool(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'bool'})
     return ControllerParams(law=_law_gains(v, s, model), runtime=_runtime_config(v, s, model),
-                            stiffness=_stiffness_config(s), recovery=_recovery_config(s))
+                            stiffness=_stiffness_config(s), recovery=_recovery_config(s),
+                            normal=_normal_config(s))
+
+
+def normal_rate_bound(lambda1: float, lambda2: float, k_max: float) -> float:
+    """
+    Return the largest rotation rate of n, rad/s, that keeps (28) negative definite.
+
+    docs/design.md, "A moving normal": with ``sigma = lambda1^2 - 2 lambda2 k_max`` (the
+    margin of eq. 29) the terms dn/dt adds to (19) and (27) are dominated while
+    ``5 omega^2 + lambda1 omega < sigma``: ``omega* = (sqrt(lambda1^2 + 20 sigma) - lambda1)/10``
+    (5.8 rad/s at the defaults; 0 when (29) fails).
+    """
+    sigma = lambda1 ** 2 - 2.0 * lambda2 * k_max
+    return max(0.0, (math.sqrt(lambda1 ** 2 + 20.0 * sigma) - lambda1) / 10.0) \
+        if sigma > 0.0 else 0.0
+
+
+def _normal_config(s: Mapping[str, Any]) -> NormalConfig:
+    """Build the ``normal`` group; errors name the parameter (``n_`` + the field)."""
+    if s['n_estimation']:
+        bound = normal_rate_bound(s['lambda1'], s['lambda2'], s['k_max'])
+        if not s['n_rate_limit'] < bound:
+            raise ParameterValidationError(
+                f'with n_estimation, n_rate_limit = {s["n_rate_limit"]:g} rad/s must be below '
+                f'(sqrt(lambda1^2 + 20 sigma) - lambda1)/10 = {bound:.4g} rad/s, sigma = '
+                'lambda1^2 - 2*lambda2*k_max (docs/design.md, "A moving normal")')
+    try:
+        return NormalConfig(**{f: s[name] for name, f in NORMAL_FIELDS.items()})
+    except NormalConfigError as exc:
+        msg = re.sub(r'^enabled\b', 'n_estimation', str(exc))
+        raise ParameterValidationError(msg if msg != str(exc) else f'n_{exc}') from None
 
 
 def _recovery_config(s: Mapping[str, Any]) -> RecoveryConfig:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ParamSpec', 'RECOVERY_FIELDS',
+__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'NORMAL_FIELDS', 'ParamSpec', 'RECOVERY_FIELDS',
            'STIFFNESS_FIELDS']
 
 
@@ -20,7 +20,7 @@ class ParamSpec:
 
     Its ROS type (``double``, ``integer``, ``double_array``, ``string_array``, ``string``,
     ``bool``), default, description, closed bounds (``None``: unbounded) and the group it
-    configures (``law``, ``runtime``, ``stiffness`` or ``recovery``).
+    configures (``law``, ``runtime``, ``stiffness``, ``normal`` or ``recovery``).
     """
 
     name: str
@@ -44,6 +44,10 @@ def _stf(*args: Any, **kwargs: Any) -> ParamSpec:
 
 def _rec(*args: Any, **kwargs: Any) -> ParamSpec:
     return ParamSpec(*args, group='recovery', **kwargs)
+
+
+def _nrm(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='normal', **kwargs)
 
 
 _S = ParamSpec
@@ -204,10 +208,39 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _rec('transient_error', 'double', 0.25,
          'A tracking error |e| above this starts an episode (an effort the plant did not '
          'apply), m/s (0: off).', 0.0, 1e3),
+    # the online estimate of the surface normal (normal_estimate.py, docs/design.md)
+    _nrm('n_estimation', 'bool', False,
+         'Estimate the surface normal online from the contact force (n is then only the '
+         'initial guess); false: the paper, n fixed.'),
+    _nrm('n_rate_limit', 'double', 0.5,
+         'Largest rotation rate of the estimated normal, rad/s; with n_estimation it must be '
+         'below (sqrt(lambda1^2 + 20 sigma) - lambda1)/10, sigma = lambda1^2 - 2 lambda2 '
+         'k_max (5.8 rad/s with the defaults; docs/design.md, "A moving normal").',
+         0.0, 100.0, positive=True),
+    _nrm('n_time_constant', 'double', 0.1,
+         'Time constant with which the estimate follows the measured normal, s.', 1e-3, 100.0),
+    _nrm('n_force_floor', 'double', 0.5,
+         'The normal is measured only with a contact force above this, N.', 0.0, 1e3,
+         positive=True),
+    _nrm('n_speed_floor', 'double', 0.01,
+         'The normal is measured only while sliding faster than this, m/s (at rest it is '
+         'held: static friction may lean the force by up to atan(mu)).', 0.0, 10.0,
+         positive=True),
+    _nrm('n_friction_removal', 'bool', True,
+         'Remove the kinetic friction mu_hat |f_perp| along the velocity (mu_hat estimated '
+         'online) from the measured force.'),
+    _nrm('n_friction_time_constant', 'double', 0.5,
+         'Time constant of the friction estimate mu_hat, s of sliding.', 1e-3, 1e3),
+    _nrm('n_velocity_fusion', 'double', 0.5,
+         'Weight of the constraint n perpendicular to the velocity, 0 (off) to 1 (the '
+         "force's whole component along the velocity removed).", 0.0, 1.0),
 )
 #: schema name -> RecoveryConfig field.
 RECOVERY_FIELDS = {s.name: 'enabled' if s.name == 'episode_recovery' else s.name
                    for s in CONTROLLER_SCHEMA if s.group == 'recovery'}
+#: schema name -> NormalConfig field.
+NORMAL_FIELDS = {s.name: 'enabled' if s.name == 'n_estimation' else s.name.removeprefix('n_')
+                 for s in CONTROLLER_SCHEMA if s.group == 'normal'}
 #: schema name -> StiffnessConfig field (k_max, k_s and force_filter_hz are shared).
 STIFFNESS_FIELDS = {s.name: 'enabled' if s.name == 'stiffness_estimation'
                     else s.name.removeprefix('stiffness_')

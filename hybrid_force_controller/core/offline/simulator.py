@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
-from .environment import ElasticSurface
+from .environment import Surface
 from ..model.robot_model import RobotModel
 from ..runtime.contact import in_contact
 
@@ -49,12 +49,13 @@ class ArmSimulator:
     """
     Semi-implicit Euler integration with ``substeps`` per control period.
 
-    Each sub-step: contact force from the surface, eqs. (12)-(13) of [1], mapped to the
-    joints by ``-J_p^T f``, optional viscous + Coulomb joint friction (off by default),
-    then ABA. Efforts are held (zero-order hold) over the whole period.
+    Each sub-step: contact force from the surface, eqs. (12)-(13) of [1] (on a curved surface
+    along its local normal, environment.py), mapped to the joints by ``-J_p^T f``, optional
+    viscous + Coulomb joint friction (off by default), then ABA. Efforts are held (zero-order
+    hold) over the whole period.
     """
 
-    def __init__(self, model: RobotModel, surface: ElasticSurface | None, q0: np.ndarray,
+    def __init__(self, model: RobotModel, surface: Surface | None, q0: np.ndarray,
                  qdot0: np.ndarray | None = None, *, substeps: int = 4,
                  noise_sigma: float = 0.0, seed: int = 0,
                  friction_viscous: float = 0.0, friction_coulomb: float = 0.0) -> None:
@@ -87,10 +88,10 @@ class ArmSimulator:
         # everything in base_link, the frame of the surface and of the controller
         pose = self.model.base_from_root(T_root_ee.translation, T_root_ee.rotation, J)
         surface = self.surface
-        depth = -1.0 if surface is None else float(surface.n_W @ (pose[0] - surface.x0_W))
+        depth = -1.0 if surface is None else surface.penetration(pose[0])
         if depth <= 0.0:  # eqs. (12)-(13): the surface pushes but never pulls
             return np.zeros(3), np.zeros(self.model.n), pose
-        f_W = (surface.k * depth) * surface.n_W
+        f_W = (surface.k * depth) * surface.normal_at(pose[0])  # n_W on the plane
         return f_W, -(pose[2].T @ f_W), pose
 
     def step(self, tau: np.ndarray, dt: float) -> Measurement:
@@ -123,6 +124,10 @@ class ArmSimulator:
         self.qdot = np.zeros(self.model.n)
         self.t += dt
         return self.measure()
+
+    def contact_normal(self, p_W: np.ndarray) -> np.ndarray | None:
+        """Return the surface's unit normal (into it) nearest ``p_W``; None without a surface."""
+        return None if self.surface is None else self.surface.normal_at(p_W)
 
     def measure(self) -> Measurement:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""

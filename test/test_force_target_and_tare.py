@@ -112,7 +112,23 @@ def test_a_tare_is_refused_while_the_arm_moves_or_in_contact(model):  # noqa: F8
     loop.rt.on_joint_state(list(model.joint_names), m.q, np.full(model.n, 3 * STILL_QDOT),
                            loop.t + 1e-3)
     loop.rt.start_tare(moving)
+    loop.rt.on_wrench('tool0', sensor_wrench_from_f_W(m.R_W_ee, m.f_W), loop.t + 1e-3)
     assert moving.state == 'aborted' and 'moving' in moving.reason
+
+
+def test_a_tare_before_any_input_waits_for_the_inputs(model):  # noqa: F811
+    """A tare asked right after configure starts with the first joint state and wrench."""
+    loop = Loop(model)
+    tare = Tare(0.005)
+    loop.rt.start_tare(tare)
+    loop.rt.on_wrench('tool0', [0.0, 2.0, 0.0], 0.0)  # no joint state yet: not taken
+    assert tare.running and tare.samples == 0
+    m, names = loop.meas, list(model.joint_names)
+    for k in range(1, 8):
+        loop.rt.on_joint_state(names, m.q, np.zeros(model.n), k * 1e-3)
+        loop.rt.on_wrench('tool0', [0.0, 2.0, 0.0], k * 1e-3)
+    assert tare.state == 'done' and tare.samples == 6
+    np.testing.assert_allclose(tare.offset, [0.0, 2.0, 0.0])
 
 
 def test_a_tare_under_way_stops_when_the_arm_moves(model):  # noqa: F811
@@ -126,4 +142,4 @@ def test_a_tare_under_way_stops_when_the_arm_moves(model):  # noqa: F811
     loop.rt.on_wrench('tool0', sensor_wrench_from_f_W(m.R_W_ee, m.f_W), loop.t + 1e-3)
     loop.rt.on_joint_state(names, m.q, np.full(model.n, 0.1), loop.t + 2e-3)
     loop.rt.on_wrench('tool0', sensor_wrench_from_f_W(m.R_W_ee, m.f_W), loop.t + 2e-3)
-    assert tare.state == 'aborted' and 'moved' in tare.reason and tare.offset is None
+    assert tare.state == 'aborted' and 'moving' in tare.reason and tare.offset is None

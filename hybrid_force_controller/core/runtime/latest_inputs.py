@@ -93,23 +93,24 @@ class LatestInputs:
             self._feed_tare(raw, t)
 
     def start_tare(self, tare: Tare) -> None:
-        """Begin a tare with the tool's weight as the sensor sees it now (aborted: why not)."""
-        s, w = self.state, self.wrench
-        if s is None or w is None:
-            tare.abort('no joint state and wrench yet')
-            return
-        if not still(s.qdot):
-            tare.abort(f'the arm is moving (|qdot| up to {np.abs(s.qdot).max():.3g} rad/s)')
-            return
-        if self._weight_W is not None:
-            R = self._rotation(w.frame_id)
-            tare.weight_S = self._weight_W if R is None else R.T.dot(self._weight_W)
+        """Begin a tare at the next wrench that has a joint state beside it (_feed_tare)."""
         self.tare = tare
 
     def _feed_tare(self, raw: Sequence[float], t: float) -> None:
-        tare = self.tare
-        if tare.running and not still(self.state.qdot):
-            tare.abort('the arm moved during the tare')
+        """
+        Give the tare one raw reading; its first takes the tool's weight as the sensor sees it.
+
+        A tare begun before any joint state waits for one (a tare right after configure);
+        the arm moving aborts it, saying so.
+        """
+        tare, s = self.tare, self.state
+        if s is None:
+            return
+        if not still(s.qdot):
+            tare.abort(f'the arm is moving (|qdot| up to {np.abs(s.qdot).max():.3g} rad/s)')
+        elif tare.samples == 0 and self._weight_W is not None:
+            R = self._rotation(self.wrench.frame_id)
+            tare.weight_S = self._weight_W if R is None else R.T.dot(self._weight_W)
         tare.add(float(raw[0]), float(raw[1]), float(raw[2]), t)
         if not tare.running:
             self.tare = None

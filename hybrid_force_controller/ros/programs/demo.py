@@ -17,6 +17,15 @@ the sensor feels and the controller's ``tool_mass`` subtracts); ``--arm panda`` 
 Panda pressing 5 N on a table along a 10 cm line, its sim masses +/-30 % off
 (config/panda_params.yaml + config/panda_table.yaml; on MuJoCo friction 0.3 and a 0.1 kg tool
 by default). metrics.json also records ``arm``, ``physics``, ``friction`` and ``tool_mass``.
+
+``--task wipe`` (wipe.py) is a user's job instead of the sine: the sim's force sensor is
+biased, the controller is configured and its sensor tared (``--no-tare``: not), then activated,
+and a separate script (send_path.py) wipes a ``--side`` square on ``~/path`` and waits for it
+to be done; the recording ends 1 s later. The metrics then start when the path starts:
+``rms_path_error_m`` and ``max_path_error_m`` (the tool's distance from the desired point in the
+tangent plane), ``rms_force_error_n`` (the true force along n), ``contact_lost_s``; metrics.json
+also records ``task`` and ``tared``. ``demo --arm panda --physics mujoco --task wipe`` is the
+issue's wiping demo: 5 N, 5 cm/s, mu 0.3, masses 30 % off.
 """
 from __future__ import annotations
 
@@ -29,7 +38,7 @@ import signal
 import subprocess
 import sys
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 from .launch import find_config, PAPER_MASSES_OFF, PKG
 
@@ -56,6 +65,12 @@ def _parser() -> argparse.ArgumentParser:
                     f'the paper arm {PAPER_MASSES_OFF}, 50 %% off; the Panda: 30 %% off, '
                     'config/panda_table.yaml); the controller starts from the URDF and learns '
                     'them (Fig. 5)')
+    ap.add_argument('--task', choices=('sine', 'wipe'), default='sine',
+                    help="sine: the paper's reference (default); wipe: tare the biased sensor, "
+                    'then wipe a --side square from a separate script (wipe.py)')
+    ap.add_argument('--side', type=float, default=0.1, help='wipe: side of the square, m')
+    ap.add_argument('--no-tare', action='store_true',
+                    help='wipe: skip the tare (the sensor bias stays in the force)')
     ap.add_argument('--tool-mass', type=float, default=None,
                     help="mujoco: mass of the tool, kg, in the sim and the controller's "
                     'tool_mass (default 0; the Panda 0.1)')
@@ -85,12 +100,13 @@ def _sim_masses(args: argparse.Namespace) -> list[str]:
 
 
 def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, str],
-                 log_dir: Path, sim_args: Sequence[str] = ()) -> list[subprocess.Popen]:
+                 log_dir: Path, sim_args: Sequence[str] = (),
+                 ctrl_args: Sequence[str] = ()) -> list[subprocess.Popen]:
     """Start sim and controller as processes; their logs go to LOG_DIR/{sim,controller}.log."""
     common = ['--ros-args', *ros_args]
     sim = [sys.executable, '-m', 'sim_node.sim_node', *common, *sim_args,
            '-p', f'lockstep:={str(lockstep).lower()}', '-p', f'surface_friction:={mu!r}']
-    ctrl = [sys.executable, '-m', f'{PKG}.ros.controller.controller_node', *common,
+    ctrl = [sys.executable, '-m', f'{PKG}.ros.controller.controller_node', *common, *ctrl_args,
             '-p', f'use_sim_time:={str(lockstep).lower()}']
     procs = []
     for name, cmd in (('sim', sim), ('controller', ctrl)):
@@ -99,8 +115,14 @@ def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, 
     return procs
 
 
-def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -> None:
-    """Spin a recorder until its clock has advanced ``duration`` s; show progress."""
+def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float,
+            operator: Any = None) -> None:
+    """
+    Spin a recorder until its clock has advanced ``duration`` s; show progress.
+
+    With ``operator`` (a callable given the recorder's node, returning an object with
+    ``poll(elapsed) -> done`` and ``stop()``: wipe.py), until the operator is done instead.
+    """
     import rclpy
     from rclpy.parameter import Parameter
     from rclpy.task import Future
@@ -111,6 +133,7 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
     rec = BagRecorder(bag, parameter_overrides=[Parameter('use_sim_time', value=lockstep)])
     executor = make_executor('events')
     executor.add_node(rec)
+    task = None if operator is None else operator(rec)
     never = Future()
     try:
         t_wall0, t_start, shown = time.monotonic(), None, -1
@@ -122,8 +145,9 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
             elapsed = 0.0 if t_start is None else now - t_start
             if int(elapsed) != shown:
                 shown = int(elapsed)
-                print(f'\r  recording: {elapsed:5.1f} / {duration:.0f} s', end='', flush=True)
-            if elapsed >= duration:
+                total = f'{duration:.0f} s' if task is None else 'the task'
+                print(f'\r  recording: {elapsed:5.1f} s of {total}', end='', flush=True)
+            if elapsed >= duration if task is None else task.poll(elapsed):
                 break
             if any(p.poll() is not None for p in procs):
                 raise RuntimeError('a node exited early; see sim.log / controller.log')
@@ -131,6 +155,8 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float) -
                 raise TimeoutError(f'recording did not reach {duration} s in {timeout} s')
         print()
     finally:
+        if task is not None:
+            task.stop()
         executor.shutdown(timeout_sec=5.0)
         rec.destroy_node()
         rclpy.shutdown()
@@ -144,35 +170,47 @@ def _add_mode(metrics_path: Path, mode: str, **setup: object) -> None:
     metrics_path.write_text(json.dumps(metrics, indent=2) + '\n')
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the demo; 0 on success, 2 on failure (with the reason on stderr)."""
-    args = _parser().parse_args(argv)
+F_D = {'paper': 1.0, 'panda': 5.0}  # N: config/params.yaml, config/panda_table.yaml
+
+
+def _check(args: argparse.Namespace) -> str:
+    """Return what is wrong with the arguments ('' when nothing is)."""
     if args.duration < 6.0:
-        print('error: --duration must be >= 6 s (metrics start at 5 s)', file=sys.stderr)
-        return 2
+        return '--duration must be >= 6 s (metrics start at 5 s)'
     for name, value in (('friction', args.friction), ('tool-mass', args.tool_mass)):
         if value is not None and (args.physics != 'mujoco' or value < 0.0):
-            print(f'error: --{name} needs --physics mujoco and a value >= 0', file=sys.stderr)
-            return 2
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    os.environ.setdefault('ROS_DOMAIN_ID', '37')
-    bag, report_dir = args.out / 'bag', args.out / 'report'
-    shutil.rmtree(bag, ignore_errors=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    mode = 'lockstep' if args.lockstep else 'real_time'
-    print(f'demo: {args.arm} arm on {args.physics} physics, {args.duration:.0f} s, '
-          f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
+            return f'--{name} needs --physics mujoco and a value >= 0'
+    if args.task == 'wipe' and not 0.0 < args.side <= 0.5:
+        return '--side must be in (0, 0.5] m'
+    return ''
+
+
+def _operator(args: argparse.Namespace, env: dict[str, str]) -> Any:
+    """Return the wipe's operator factory (wipe.py), or None for the sine."""
+    if args.task != 'wipe':
+        return None
+    from .wipe import WipeOperator
+    script = [f'{PKG}.ros.programs.send_path', '--side', repr(args.side)]
+    return lambda node: WipeOperator(node, not args.no_tare, script, env,
+                                     args.out / 'script.log', F_D[args.arm])
+
+
+def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int, float, float]:
+    """Run the nodes and record; return 0 (or 2 on failure), mu and the tool mass."""
+    from .wipe import WIPE_CONTROLLER_ARGS, WIPE_SIM_ARGS
     ros_args, mu, tool_mass = _scenario_args(args)
-    procs = _start_nodes(ros_args, mu, args.lockstep, dict(os.environ), args.out,
-                         _sim_masses(args))
+    wipe = args.task == 'wipe'
+    env = dict(os.environ)
+    procs = _start_nodes(ros_args, mu, args.lockstep, env, args.out,
+                         _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []),
+                         WIPE_CONTROLLER_ARGS if wipe else [])
     try:
-        _record(bag, args.duration, args.lockstep, procs, args.timeout)
+        _record(bag, args.duration, args.lockstep, procs, args.timeout, _operator(args, env))
     except (RuntimeError, TimeoutError) as exc:
         print(f'\nerror: {exc}', file=sys.stderr)
-        return 2
+        return 2, mu, tool_mass
     except KeyboardInterrupt:
         print(f'\ndemo: interrupted; the partial bag is {bag}', file=sys.stderr)
-        return 0
     finally:
         for p in procs:
             p.send_signal(signal.SIGINT)
@@ -182,12 +220,46 @@ def main(argv: Sequence[str] | None = None) -> int:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+    return 0, mu, tool_mass
+
+
+def _t_start(args: argparse.Namespace, bag: Path) -> float:
+    """Return when the metrics start: 5 s, or for the wipe the path's start (bag time)."""
+    if args.task != 'wipe':
+        return 5.0
+    from ...tools.bag_io import load_run
+    log = load_run(bag)
+    running = log.path_running if log.path_running is not None else log.t < 0.0
+    return float(log.t[running.argmax()]) if running.any() else 5.0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the demo; 0 on success, 2 on failure (with the reason on stderr)."""
+    args = _parser().parse_args(argv)
+    problem = _check(args)
+    if problem:
+        print(f'error: {problem}', file=sys.stderr)
+        return 2
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    os.environ.setdefault('ROS_DOMAIN_ID', '37')
+    bag, report_dir = args.out / 'bag', args.out / 'report'
+    shutil.rmtree(bag, ignore_errors=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    mode = 'lockstep' if args.lockstep else 'real_time'
+    what = f'{args.duration:.0f} s' if args.task == 'sine' else f'task {args.task}'
+    print(f'demo: {args.arm} arm on {args.physics} physics, {what}, '
+          f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
+    code, mu, tool_mass = _run(args, bag, mode)
+    if code:
+        return code
     from ...tools.report import main as report_main
     print('report:')
-    code = report_main([str(bag), '--out', str(report_dir)])
+    code = report_main([str(bag), '--out', str(report_dir), '--t-start',
+                        repr(_t_start(args, bag))])
     if code == 0:
         _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
-                  friction=mu, tool_mass=tool_mass)
+                  friction=mu, tool_mass=tool_mass, task=args.task,
+                  tared=args.task == 'wipe' and not args.no_tare)
         figures = ', '.join(p.name for p in sorted(report_dir.glob('fig*.png')))
         print(f'bag:     {bag}\nfigures: {report_dir}/{figures}\n'
               f'metrics: {report_dir}/metrics.json')

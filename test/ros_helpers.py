@@ -119,6 +119,20 @@ class NodeProcess:
         if self.proc is not None:
             self.proc.wait(30)
 
+    def refused_at_start_up(self, timeout: float = 60.0) -> str:
+        """
+        Start, wait for the process to end by itself, and return its log.
+
+        For a node whose configuration is invalid: it must exit 1 on its own (asserted).
+        """
+        self.start()
+        try:
+            self.proc.wait(timeout)
+        finally:
+            self.stop()
+        assert self.returncode == 1, self.tail()
+        return self.log_since()
+
     def stop(self, timeout: float = 10.0) -> int | None:
         """
         SIGINT (clean shutdown); SIGKILL if it does not exit within ``timeout``.

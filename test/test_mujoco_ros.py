@@ -120,13 +120,8 @@ def test_wrist_wrench_reads_the_tool_weight_in_the_end_effector_frame(tmp_path):
 def test_bad_settings_stop_the_sim_at_start_up(tmp_path, override, words):
     sim = _node('sim_node.sim_node', tmp_path, 'sim', domain_id('mujoco_ros'),
                 _files('params.yaml', 'mujoco.yaml') + ['-p', override])
-    sim.start()
-    try:
-        sim.proc.wait(60)
-    finally:
-        sim.stop()
-    assert sim.returncode == 1, sim.tail()
-    assert 'invalid configuration' in sim.log_since() and words in sim.log_since(), sim.tail()
+    log = sim.refused_at_start_up()
+    assert 'invalid configuration' in log and words in log, log
 
 
 def test_run_time_stiffness_is_bounded_by_the_table_top(tmp_path):

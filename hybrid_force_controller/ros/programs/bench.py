@@ -371,10 +371,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help='a checkout of commit 34ec57e: its controller step timed in the '
                     'same run, with the ratio of the tick medians')
     ap.add_argument('--no-offline', action='store_true', help='skip the offline figures')
+    ap.add_argument('--arms', type=int, default=0, metavar='N',
+                    help='with --ros: N sim + controller pairs in /arm1 ... /armN instead '
+                    "(multi_arm.py), each arm's figures")
     args = ap.parse_args(argv)
     try:
         figures = {} if args.no_offline else offline_figures(args.old_tree)
-        if args.ros:
+        if args.ros and args.arms > 0:
+            from .multi_arm import multi_arm_figures
+            scenario = _scenario(args)
+            figures.update(multi_arm_figures(
+                args.arms, args.ros_duration, [*scenario['scenario'], *_params(args)],
+                scenario['sim_args'], *scenario['n_f_d']))
+        elif args.ros:
             figures.update(ros_loop_figures(
                 args.ros_duration, args.load_duty, _params(args), freezes=args.freezes,
                 freeze_ms=args.freeze_ms, one_core=args.one_core,

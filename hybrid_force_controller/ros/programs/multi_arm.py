@@ -3,11 +3,11 @@
 
 The dual-arm cell a user builds with namespaces (``-r __ns:=/arm1`` ...): every pair runs the
 same scenario (the config files of ``--arm``/``--physics``, as ``bench --ros``) in real time in
-one ROS domain, with one bare node (on the first arm's inputs) as the yardstick. Over ``--ros-duration`` s after the warm-up
-it reports per arm the commands per second that reached the plant (the sim's own count), the
-sim's command timeouts, the tracking (ros/programs/tracking.py: RMS tangential position and
-true-force errors, contact lost) and the CPU of each process (% of one core), and each
-controller's CPU over the bare node's.
+one ROS domain, with one bare node (on the first arm's inputs) as the yardstick. Over
+``--ros-duration`` s after the warm-up it reports per arm the commands per second that reached
+the plant (the sim's own count over its own time), the sim's command timeouts, the tracking
+(ros/programs/tracking.py: RMS tangential position and true-force errors, contact lost) and
+the CPU of each process (% of one core), and each controller's CPU over the bare node's.
 """
 from __future__ import annotations
 

@@ -151,9 +151,9 @@ def test_one_stray_message_moves_the_offset_by_microseconds_only():
 NAMES = ['joint1', 'joint2']
 
 
-def joints(max_jump=0.05, margin=1.5, limits=(10.0, 10.0)) -> JointInput:
+def joints(max_jump=0.01, margin=1.5, limits=(10.0, 10.0), accel=1000.0) -> JointInput:
     j = JointInput(NAMES, NAMES)
-    j.configure_checks(np.array(limits), margin, max_jump, 0.1)
+    j.configure_checks(np.array(limits), margin, max_jump, accel, 0.2)
     return j
 
 
@@ -162,7 +162,7 @@ def test_position_step_beyond_the_velocities_is_refused_with_the_reason():
     last = j.sample(NAMES, Q0, [1.0, 0.0], 0.0, None)
     good = j.sample(NAMES, Q0 + [1e-3, 0.0], [1.0, 0.0], 1e-3, last)  # 1 rad/s for 1 ms
     with pytest.raises(ImplausibleJointState, match=r'joint1 moved \+0.2 in 1 ms, 0.199 more '
-                       r'than its velocities allow \(max_joint_jump 0.05\)'):
+                       r'than its velocities allow \(max_joint_jump 0.01\)'):
         j.sample(NAMES, good.q + [0.2, 0.0], [1.0, 0.0], 2e-3, good)
     # against the last accepted one (the refused one is no reference): the next is fine
     j.sample(NAMES, good.q + [1e-3, 0.0], [1.0, 0.0], 2e-3, good)
@@ -172,7 +172,7 @@ def test_fast_consistent_motion_and_a_jump_after_a_gap_are_accepted():
     j = joints()
     last = j.sample(NAMES, Q0, [8.0, -8.0], 0.0, None)
     s = j.sample(NAMES, Q0 + [0.08, -0.08], [8.0, -8.0], 0.01, last)  # 8 rad/s for 10 ms
-    j.sample(NAMES, s.q + [0.3, 0.0], [0.0, 0.0], 0.01 + 0.1001, s)  # after state_timeout
+    j.sample(NAMES, s.q + [0.3, 0.0], [0.0, 0.0], 0.01 + 0.2001, s)  # after the gap
 
 
 @pytest.mark.parametrize('v', [15.1, -15.1, 100.0])
@@ -187,9 +187,19 @@ def test_velocity_beyond_the_urdf_limit_times_the_margin_is_refused(v):
 def test_joints_without_a_urdf_limit_and_zero_settings_are_not_checked():
     j = joints(limits=(np.inf, 0.0))
     j.sample(NAMES, Q0, [1e3, 1e3], 0.0, None)
-    j = joints(max_jump=0.0, margin=0.0)
+    j = joints(max_jump=0.0, margin=0.0, accel=0.0)
     last = j.sample(NAMES, Q0, [1e3, 0.0], 0.0, None)
     j.sample(NAMES, Q0 + 1.0, [0.0, 0.0], 1e-3, last)
+
+
+def test_a_velocity_jump_beyond_max_joint_acceleration_is_refused():
+    """A velocity discontinuity (libfranka's reflex): 1000 rad/s^2 allows 1 rad/s per ms."""
+    j = joints()
+    last = j.sample(NAMES, Q0, [0.2, 0.0], 0.0, None)
+    with pytest.raises(ImplausibleJointState, match=r"joint1's velocity changed by \+1.4 in 1 ms "
+                       r'\(max_joint_acceleration 1000\)'):
+        j.sample(NAMES, Q0 + [8e-4, 0.0], [1.6, 0.0], 1e-3, last)  # x8: a bit of the exponent
+    j.sample(NAMES, Q0 + [3e-4, 0.0], [0.4, 0.0], 1e-3, last)  # 200 rad/s^2: accepted
 
 
 def test_joint_velocity_margin_below_one_is_refused():
@@ -352,6 +362,16 @@ def test_a_burst_of_jumped_states_longer_than_state_timeout_is_safe_mode_then_ad
     assert refused[-1] - refused[0] == pytest.approx(0.2, abs=2e-3)
     assert 'safe' not in modes[:600] and set(modes[610:690]) == {'safe'} and modes[-1] != 'safe'
     assert rt.counters['safe_mode_entries'] == 1
+
+
+def test_clock_offset_warnings_once_per_stream():
+    from hybrid_force_controller.ros.controller.diagnostics import clock_offset_warnings
+    warned: set = set()
+    out = clock_offset_warnings({'joint_state': 1e-4, 'wrench': 2.0}, warned)
+    assert len(out) == 1 and 'wrench stamps are 2.000 s ahead of' in out[0]
+    out = clock_offset_warnings({'joint_state': -0.3, 'wrench': 2.0}, warned)
+    assert len(out) == 1 and 'joint state stamps are 0.300 s behind' in out[0]
+    assert clock_offset_warnings({'joint_state': -0.3, 'wrench': math.nan}, warned) == []
 
 
 def test_joint_sample_is_a_reference_only_when_accepted():

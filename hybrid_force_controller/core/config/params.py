@@ -79,6 +79,7 @@ class RuntimeConfig:
     wrench_rate_limit: float
     max_clock_skew: float
     max_joint_jump: float
+    max_joint_acceleration: float
     joint_velocity_margin: float
     reject_frozen_wrench: bool
     tool_mass: float
@@ -259,6 +260,7 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
         approach_limit=s['approach_limit'],
         wrench_limit=s['wrench_limit'], wrench_rate_limit=s['wrench_rate_limit'],
         max_clock_skew=s['max_clock_skew'], max_joint_jump=s['max_joint_jump'],
+        max_joint_acceleration=s['max_joint_acceleration'],
         joint_velocity_margin=s['joint_velocity_margin'],
         reject_frozen_wrench=s['reject_frozen_wrench'], tool_mass=s['tool_mass'],
         tool_com=_array('tool_com', v['tool_com'], (0, 3)).reshape(-1, 3).sum(0))  # []: 0

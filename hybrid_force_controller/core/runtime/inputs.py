@@ -4,8 +4,10 @@ The controller's inputs as typed records, checked at the boundary (pure numpy).
 :class:`JointInput` maps a joint state by name onto the model's joints (the index map is
 cached per name list, so a steady stream costs no lookups) and refuses a state that cannot be
 physical (:class:`ImplausibleJointState`): a joint velocity beyond the URDF's limit times
-``joint_velocity_margin``, or a position further from the last accepted state than the two
-states' velocities explain (trapezoidal rule) plus ``max_joint_jump``, within a gap after it
+``joint_velocity_margin``, a position further from the last accepted state than the two
+states' velocities explain (trapezoidal rule) plus ``max_joint_jump``, or a velocity that
+changed faster than ``max_joint_acceleration`` (libfranka's position and velocity
+discontinuity reflexes), within a gap after it
 (the runtime uses 2 ``state_timeout``: a burst of jumped states is first stale, safe mode;
 after the gap any position is accepted, as the arm may really have been moved meanwhile).
 A refused state is never the one later states are compared against. :class:`WrenchGate` decides
@@ -72,15 +74,16 @@ class JointInput:
         self._idx: list[int] = []
         self._last: JointSample | None = None  # the last sample returned, as lists
         self._last_lists: tuple[list[float], list[float]] = ([], [])
-        self.configure_checks(np.full(len(self.model_joints), np.inf), 0.0, 0.0, 0.0)
+        self.configure_checks(np.full(len(self.model_joints), np.inf), 0.0, 0.0, 0.0, 0.0)
 
     def configure_checks(self, v_limit: np.ndarray, margin: float, max_jump: float,
-                         gap: float) -> None:
+                         max_accel: float, gap: float) -> None:
         """
         Set the plausibility bounds (model order; 0: that check is off).
 
         ``v_limit`` the URDF's velocity limits (0 or inf: none), ``margin`` the factor
-        on them, ``max_jump`` the position bound and ``gap`` the time within which it applies.
+        on them, ``max_jump`` the position bound, ``max_accel`` the largest velocity change
+        per second and ``gap`` the time within which these two apply.
         """
         v_limit = np.asarray(v_limit, dtype=float)
         limited = np.isfinite(v_limit) & (v_limit > 0.0)
@@ -89,7 +92,7 @@ class JointInput:
         self._v_limit, self._margin = v_limit, margin
         self._check_v = bool(margin > 0.0 and limited.any())
         self._v_max_list = self._v_max.tolist()
-        self.max_jump, self.gap = max_jump, gap
+        self.max_jump, self.max_accel, self.gap = max_jump, max_accel, gap
 
     def _index(self, names: Sequence[str]) -> list[int]:
         key = tuple(names)
@@ -123,7 +126,7 @@ class JointInput:
             for v, v_max in zip(vs, self._v_max_list):
                 if v > v_max or -v > v_max:
                     self._too_fast(v_arr)
-        if self.max_jump and t - t_last <= self.gap:
+        if (self.max_jump or self.max_accel) and t - t_last <= self.gap:
             self._check_step(qs, vs, t - t_last, last)
         sample = JointSample(t, q_arr, v_arr)
         self._last, self._last_lists = sample, (qs, vs)
@@ -131,14 +134,26 @@ class JointInput:
 
     def _check_step(self, qs: list[float], vs: list[float], dt: float,
                     last: JointSample) -> None:
-        """Refuse a position further from ``last`` than the trapezoidal rule and max_jump."""
+        """
+        Refuse a step from ``last`` that the velocities do not explain, or a velocity jump.
+
+        Position: further than the trapezoidal rule plus max_jump; velocity: a change
+        beyond max_accel dt (a joint velocity discontinuity).
+        """
         lq, lv = (self._last_lists if last is self._last else
                   (last.q.tolist(), last.qdot.tolist()))
-        h, bound = 0.5 * dt, self.max_jump
-        for a, b, c, d in zip(qs, lq, vs, lv):
+        h = 0.5 * dt
+        bound = self.max_jump or math.inf
+        dv_max = self.max_accel * dt if self.max_accel else math.inf
+        for i, (a, b, c, d) in enumerate(zip(qs, lq, vs, lv)):
             if abs(a - b - h * (c + d)) > bound:
                 e = np.array(qs) - last.q - h * (np.array(vs) + last.qdot)
                 self._jumped(e, np.array(qs) - last.q, dt)
+            if abs(c - d) > dv_max:
+                raise ImplausibleJointState(
+                    f"implausible joint state: {self.model_joints[i]}'s velocity changed by "
+                    f'{c - d:+.4g} in {dt * 1e3:.4g} ms (max_joint_acceleration '
+                    f'{self.max_accel:g})')
 
     def _too_fast(self, v: np.ndarray) -> None:
         i = int(np.argmax(np.abs(v) - self._v_max))

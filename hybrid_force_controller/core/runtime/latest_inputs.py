@@ -53,7 +53,8 @@ class LatestInputs:
         # a jump is refused up to 2 state_timeout after the last accepted state: a burst
         # longer than state_timeout is safe mode (stale), then the new position is adopted
         self._joints.configure_checks(self.model.velocity_limits, rt.joint_velocity_margin,
-                                      rt.max_joint_jump, 2.0 * rt.state_timeout)
+                                      rt.max_joint_jump, rt.max_joint_acceleration,
+                                      2.0 * rt.state_timeout)
         self.gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
         for clock in self.clocks.values():
             clock.configure(rt.max_clock_skew, rt.state_timeout, 2.0 * rt.state_timeout,

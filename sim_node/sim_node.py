@@ -11,7 +11,9 @@ once, transient local), ``robot_description`` (its URDF, transient local, like
 robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
 late callbacks, lost periods, the plant's mean time per step); takes efforts from
 ``effort_controller/commands``. Names are relative, so ``-r __ns:=/arm1`` moves them all.
-Until the first valid command the arm is held still (brakes).
+Until the first valid command the arm is held still (brakes). ``joint_state_clock_offset`` and
+``wrench_clock_offset`` (s) are added to the sensors' stamps: drivers on PCs whose clocks are
+off (the true force and ``/clock`` keep the sim's time).
 
 Real time: physics runs on wall time. A timer at ``rate_hz`` integrates every period that
 has passed since the last callback (a late callback catches up, at most
@@ -111,6 +113,9 @@ class SimNode(Node):
                                       self._surface, self._set_surface, unit=UNIT)
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
         self.command_timeout, self.max_catch_up = v['command_timeout'], v['max_catch_up']
+        # sensor clocks off by a constant (a driver on an unsynced PC), ns
+        self.js_offset_ns = round(v['joint_state_clock_offset'] * 1e9)
+        self.ft_offset_ns = round(v['wrench_clock_offset'] * 1e9)
         rate = v['telemetry_rate_hz']
         self.true_every = 0 if rate <= 0.0 else max(1, round(v['rate_hz'] / rate))
         self.base_frame, self.tool_frame = model.base_link, model.end_effector_link
@@ -320,8 +325,8 @@ class SimNode(Node):
             torque = getattr(self.sim, 'torque_S', None)  # MuJoCo's wrist torque sensor
             if torque is not None:
                 ft.arrays[1][:] = torque
-        js.set_stamp(t_ns)
-        ft.set_stamp(t_ns)
+        js.set_stamp(t_ns + self.js_offset_ns)
+        ft.set_stamp(t_ns + self.ft_offset_ns)
         self.pub_ft.publish(ft.serialized())
         self.pub_js.publish(js.serialized())
         stamp = None

@@ -40,6 +40,10 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('masses', 'double_array', [], 'True link masses, kg ([] = URDF).', {}),
     ('q0', 'double_array', [0.657, 0.913], 'Initial joint positions (joints order), rad.', {}),
     ('noise_sigma', 'double', 0.0, 'Force sensor noise sigma, N.', 0.0, 1e3, {}),
+    ('joint_state_clock_offset', 'double', 0.0, "Added to the joint states' stamps, s: a "
+     'driver on a PC whose clock is off (0: none).', -1e6, 1e6, {}),
+    ('wrench_clock_offset', 'double', 0.0, "Added to the wrench's stamps, s: an F/T sensor "
+     'driver on a PC whose clock is off (0: none).', -1e6, 1e6, {}),
     ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
     ('substeps', 'integer', 2, 'Integration sub-steps per step (the offline scenarios use 2).',
      1, 1000, {}),
@@ -65,6 +69,7 @@ HELP_PARAMETERS = (
     ('sensor_frozen', 'true: the F/T sensor repeats its last reading (settable)'),
     ('sensor_offset', "the F/T sensor's bias, N, sensor frame (settable)"),
     ('noise_sigma, seed', 'force sensor noise'),
+    ('joint_state_clock_offset, wrench_clock_offset', 'added to the sensor stamps, s'),
     ('command_timeout', 'zero effort after this long without a command'),
     ('max_catch_up', 'most periods a late timer callback integrates'),
     ('robot_description', "URDF XML, .urdf or .xacro path ('': the paper's 2-link arm)"),

@@ -115,7 +115,7 @@ def test_tick_before_any_input_is_waiting(model):
 
 def test_reordered_and_extra_joint_names(model):
     (a, b), F = started_pair(model)
-    q, qdot = np.array([0.7, 0.9]), np.array([0.1, -0.3])
+    q, qdot = Q0 + [1e-4, -1e-4], np.array([0.1, -0.3])  # (a step the velocities explain)
     a.on_joint_state(['joint1', 'joint2'], q, qdot, 0.001)
     b.on_joint_state(['finger', 'joint2', 'joint1'], [0.33, q[1], q[0]],
                      [9.0, qdot[1], qdot[0]], 0.001)

@@ -81,6 +81,10 @@ class RuntimeConfig:
     approach_limit: float
     wrench_limit: float
     wrench_rate_limit: float
+    max_clock_skew: float
+    max_joint_jump: float
+    max_joint_acceleration: float
+    joint_velocity_margin: float
     reject_frozen_wrench: bool
     tool_mass: float
     tool_com: np.ndarray
@@ -255,6 +259,10 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
     limits = np.asarray(model.effort_limits, dtype=float) if limits.size == 0 else limits
     if limits.shape != (n_joints,) or np.any(limits <= 0):
         raise ParameterValidationError(f'effort_limits must be {n_joints} values > 0')
+    if 0.0 < s['joint_velocity_margin'] < 1.0:
+        raise ParameterValidationError(
+            f"joint_velocity_margin must be 0 (off) or >= 1, got {s['joint_velocity_margin']:g}:"
+            " below 1 it refuses motion within the URDF's velocity limits")
     return RuntimeConfig(
         rate_hz=s['rate_hz'], joints=joints, effort_limits=limits,
         max_effort_rate=s['max_effort_rate'], force_filter_hz=s['force_filter_hz'],
@@ -265,6 +273,9 @@ def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) ->
         min_delay_margin=s['min_delay_margin'], approach_speed=s['approach_speed'],
         approach_limit=s['approach_limit'],
         wrench_limit=s['wrench_limit'], wrench_rate_limit=s['wrench_rate_limit'],
+        max_clock_skew=s['max_clock_skew'], max_joint_jump=s['max_joint_jump'],
+        max_joint_acceleration=s['max_joint_acceleration'],
+        joint_velocity_margin=s['joint_velocity_margin'],
         reject_frozen_wrench=s['reject_frozen_wrench'], tool_mass=s['tool_mass'],
         tool_com=_array('tool_com', v['tool_com'], (0, 3)).reshape(-1, 3).sum(0),  # []: 0
         wrench_offset=_array('wrench_offset', v['wrench_offset'], (0, 3)).reshape(-1, 3).sum(0),

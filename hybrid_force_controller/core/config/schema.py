@@ -123,6 +123,22 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _S('wrench_rate_limit', 'double', 20000.0,
        'Largest plausible change of the force reading, N/s; faster changes are dropped.',
        0.0, 1e9, positive=True),
+    _S('max_clock_skew', 'double', 10.0,
+       "Largest plausible difference between an input's stamp and the controller's clock "
+       'when it arrives, s; beyond it the message is refused. Within it the clock offset of '
+       'each input stream is measured and removed (sender_clock.py; 0: stamps used as they '
+       'come).',
+       0.0, 1e9),
+    _S('max_joint_jump', 'double', 0.01,
+       'Largest plausible position change of a joint beyond what the velocities of two '
+       'consecutive joint states explain, rad (m for a prismatic joint); a larger one is '
+       'refused (0: off).', 0.0, 1e3),
+    _S('max_joint_acceleration', 'double', 1000.0,
+       'Largest plausible change of a joint velocity between two joint states, per second '
+       'between their stamps, rad/s^2 (m/s^2); a faster one is refused (0: off).', 0.0, 1e9),
+    _S('joint_velocity_margin', 'double', 1.5,
+       "A joint velocity beyond the URDF's velocity limit times this is refused (joints "
+       'without a limit are not checked; 0: off, else >= 1).', 0.0, 1e3),
     _S('reject_frozen_wrench', 'bool', True,
        'Treat bit-identical force readings as stale (a frozen sensor leads to safe mode '
        'after state_timeout).'),

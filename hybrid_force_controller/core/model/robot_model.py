@@ -105,6 +105,7 @@ class RobotModel:
         self.task_index = slice(a0, a1 + 1) if contiguous else list(self.task_axes)
         self.redundant = self.n > self.m
         self.effort_limits = model.effortLimit.copy()
+        self.velocity_limits = model.velocityLimit.copy()  # inf or 0: the URDF gives none
         self._zero = np.zeros(self.n)
         self._frame_ids: dict[str, int] = {}
 

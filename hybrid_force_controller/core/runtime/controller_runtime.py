@@ -54,9 +54,11 @@ __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
 
 _STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
-_COUNTERS = ('ticks', 'joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
-             'safe_mode_entries', 'control_errors', 'saturated_ticks', 'clock_restarts',
-             'approach_entries', 'stale_ticks', 'late_states', 'stalls')
+_COUNTERS = ('ticks', 'joint_state_dropped', 'joint_state_implausible',
+             'joint_state_clock_implausible', 'wrench_dropped', 'wrench_implausible',
+             'wrench_clock_implausible', 'safe_mode_entries', 'control_errors',
+             'saturated_ticks', 'clock_restarts', 'approach_entries', 'stale_ticks',
+             'late_states', 'stalls')
 
 
 class ControllerRuntime:
@@ -135,15 +137,26 @@ class ControllerRuntime:
 
     # ------------------------------------------------------------------ inputs
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
-                       qdot: Sequence[float] | None, t: float) -> None:
-        """Store a joint state mapped by name (reordered and extra joints are fine)."""
-        self._in.on_joint_state(names, q, qdot, t)
+                       qdot: Sequence[float] | None, t: float,
+                       t_recv: float | None = None) -> None:
+        """
+        Store a joint state mapped by name (reordered and extra joints are fine).
+
+        ``t`` is its stamp; ``t_recv`` (optional) the caller's clock when it arrived: the
+        stamp is then checked against it and mapped onto it (latest_inputs.py).
+        """
+        self._in.on_joint_state(names, q, qdot, t, t_recv)
         if self.validator.operating_pose is None and self._in.state is not None:
             self.validator.note_pose(self._in.state.q)
 
-    def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
-        """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
-        self._in.on_wrench(frame_id, force, t)
+    def on_wrench(self, frame_id: str, force: Sequence[float], t: float,
+                  t_recv: float | None = None) -> None:
+        """Store the force the environment exerts on the tool, in ``frame_id`` (t_recv: above)."""
+        self._in.on_wrench(frame_id, force, t, t_recv)
+
+    def clock_offsets(self) -> dict[str, float]:
+        """Return each input stream's measured clock offset, s (NaN before it is measured)."""
+        return {k: math.nan if c.offset is None else c.offset for k, c in self._in.clocks.items()}
 
     def start_tare(self, tare: Tare) -> None:
         """
@@ -188,7 +201,7 @@ class ControllerRuntime:
 
     @property
     def state_stamp(self) -> float:
-        """Stamp of the latest joint state, s (-inf before the first)."""
+        """Stamp of the latest joint state on the caller's clock, s (-inf before the first)."""
         return -math.inf if self._in.state is None else self._in.state.t
 
     @property

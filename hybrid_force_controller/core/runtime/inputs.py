@@ -2,7 +2,15 @@
 The controller's inputs as typed records, checked at the boundary (pure numpy).
 
 :class:`JointInput` maps a joint state by name onto the model's joints (the index map is
-cached per name list, so a steady stream costs no lookups). :class:`WrenchGate` decides
+cached per name list, so a steady stream costs no lookups) and refuses a state that cannot be
+physical (:class:`ImplausibleJointState`): a joint velocity beyond the URDF's limit times
+``joint_velocity_margin``, a position further from the last accepted state than the two
+states' velocities explain (trapezoidal rule) plus ``max_joint_jump``, or a velocity that
+changed faster than ``max_joint_acceleration`` (libfranka's position and velocity
+discontinuity reflexes), within a gap after it
+(the runtime uses 2 ``state_timeout``: a burst of jumped states is first stale, safe mode;
+after the gap any position is accepted, as the arm may really have been moved meanwhile).
+A refused state is never the one later states are compared against. :class:`WrenchGate` decides
 whether a wrench reading is plausible: finite, in a known frame, not older than the last,
 within ``wrench_limit`` and not changing faster than ``wrench_rate_limit`` from the last
 accepted reading. A frozen sensor (bit-identical non-zero readings) is flagged so the
@@ -19,8 +27,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-__all__ = ['ImplausibleWrench', 'InputError', 'JointInput', 'JointSample', 'WrenchGate',
-           'WrenchSample']
+__all__ = ['ImplausibleJointState', 'ImplausibleWrench', 'InputError', 'JointInput',
+           'JointSample', 'WrenchGate', 'WrenchSample']
 
 
 NO_FORCE_N = 1e-9  # a reading this small is no force (exempt from the frozen-sensor check)
@@ -35,6 +43,14 @@ class ImplausibleWrench(InputError):
     A well-formed wrench reading that cannot be physical (too large, or changing too fast).
 
     A saturated sensor looks the same.
+    """
+
+
+class ImplausibleJointState(InputError):
+    """
+    A well-formed joint state that cannot be physical (a jump, a velocity beyond the limit).
+
+    An encoder glitch or a message corrupted in a driver looks the same.
     """
 
 
@@ -55,12 +71,33 @@ class WrenchSample(NamedTuple):
 
 
 class JointInput:
-    """Joint states by name -> :class:`JointSample` in ``model_joints`` order."""
+    """Joint states by name -> :class:`JointSample` in ``model_joints`` order, checked."""
 
     def __init__(self, model_joints: Sequence[str], controlled: Sequence[str]) -> None:
         self.model_joints, self.controlled = tuple(model_joints), tuple(controlled)
         self._names: tuple[str, ...] | None = None
         self._idx: list[int] = []
+        self._last: JointSample | None = None  # the last sample returned, as lists
+        self._last_lists: tuple[list[float], list[float]] = ([], [])
+        self.configure_checks(np.full(len(self.model_joints), np.inf), 0.0, 0.0, 0.0, 0.0)
+
+    def configure_checks(self, v_limit: np.ndarray, margin: float, max_jump: float,
+                         max_accel: float, gap: float) -> None:
+        """
+        Set the plausibility bounds (model order; 0: that check is off).
+
+        ``v_limit`` the URDF's velocity limits (0 or inf: none), ``margin`` the factor
+        on them, ``max_jump`` the position bound, ``max_accel`` the largest velocity change
+        per second and ``gap`` the time within which these two apply.
+        """
+        v_limit = np.asarray(v_limit, dtype=float)
+        limited = np.isfinite(v_limit) & (v_limit > 0.0)
+        self._v_max = np.full(v_limit.shape, np.inf)
+        self._v_max[limited] = v_limit[limited] * margin
+        self._v_limit, self._margin = v_limit, margin
+        self._check_v = bool(margin > 0.0 and limited.any())
+        self._v_max_list = self._v_max.tolist()
+        self.max_jump, self.max_accel, self.gap = max_jump, max_accel, gap
 
     def _index(self, names: Sequence[str]) -> list[int]:
         key = tuple(names)
@@ -74,8 +111,10 @@ class JointInput:
         return self._idx
 
     def sample(self, names: Sequence[str], q: Sequence[float],
-               qdot: Sequence[float] | None, t: float, t_last: float) -> JointSample:
-        """Check and map one joint state; ``t_last`` is the stamp of the last good one."""
+               qdot: Sequence[float] | None, t: float,
+               last: JointSample | None) -> JointSample:
+        """Check and map one joint state; ``last`` is the last accepted one (or None)."""
+        t_last = -math.inf if last is None else last.t
         if t < t_last:
             raise InputError(f'joint state stamp {t:.6f} is older than the last one '
                              f'{t_last:.6f}')
@@ -85,9 +124,54 @@ class JointInput:
         if qdot is None or not len(qdot):
             raise InputError('joint state has no velocities')
         q_arr, v_arr = np.asarray(q, dtype=float)[idx], np.asarray(qdot, dtype=float)[idx]
-        if not (math.isfinite(q_arr.sum()) and math.isfinite(v_arr.sum())):
+        qs, vs = q_arr.tolist(), v_arr.tolist()  # a few joints: floats beat numpy calls
+        if not (math.isfinite(sum(qs)) and math.isfinite(sum(vs))):
             raise InputError('joint state holds NaN/Inf')
-        return JointSample(t, q_arr, v_arr)
+        if self._check_v:
+            for v, v_max in zip(vs, self._v_max_list):
+                if v > v_max or -v > v_max:
+                    self._too_fast(v_arr)
+        if (self.max_jump or self.max_accel) and t - t_last <= self.gap:
+            self._check_step(qs, vs, t - t_last, last)
+        sample = JointSample(t, q_arr, v_arr)
+        self._last, self._last_lists = sample, (qs, vs)
+        return sample
+
+    def _check_step(self, qs: list[float], vs: list[float], dt: float,
+                    last: JointSample) -> None:
+        """
+        Refuse a step from ``last`` that the velocities do not explain, or a velocity jump.
+
+        Position: further than the trapezoidal rule plus max_jump; velocity: a change
+        beyond max_accel dt (a joint velocity discontinuity).
+        """
+        lq, lv = (self._last_lists if last is self._last else
+                  (last.q.tolist(), last.qdot.tolist()))
+        h = 0.5 * dt
+        bound = self.max_jump or math.inf
+        dv_max = self.max_accel * dt if self.max_accel else math.inf
+        for i, (a, b, c, d) in enumerate(zip(qs, lq, vs, lv)):
+            if abs(a - b - h * (c + d)) > bound:
+                e = np.array(qs) - last.q - h * (np.array(vs) + last.qdot)
+                self._jumped(e, np.array(qs) - last.q, dt)
+            if abs(c - d) > dv_max:
+                raise ImplausibleJointState(
+                    f"implausible joint state: {self.model_joints[i]}'s velocity changed by "
+                    f'{c - d:+.4g} in {dt * 1e3:.4g} ms (max_joint_acceleration '
+                    f'{self.max_accel:g})')
+
+    def _too_fast(self, v: np.ndarray) -> None:
+        i = int(np.argmax(np.abs(v) - self._v_max))
+        raise ImplausibleJointState(
+            f"implausible joint state: {self.model_joints[i]}'s velocity {v[i]:.4g} is beyond "
+            f'its URDF limit {self._v_limit[i]:g} x joint_velocity_margin {self._margin:g}')
+
+    def _jumped(self, e: np.ndarray, dq: np.ndarray, dt: float) -> None:
+        i = int(np.argmax(np.abs(e)))
+        raise ImplausibleJointState(
+            f'implausible joint state: {self.model_joints[i]} moved {dq[i]:+.4g} in '
+            f'{dt * 1e3:.4g} ms, {abs(e[i]):.4g} more than its velocities allow '
+            f'(max_joint_jump {self.max_jump:g})')
 
 
 class WrenchGate:

@@ -8,6 +8,11 @@ wrench stamps, and says when the inputs are too old to act on. Every reading fir
 sensor's bias (``wrench_offset``, sensor frame), which a tare (tare.py) measures from the raw
 readings. Rejected samples are counted in
 the caller's counters and raise the typed error. Times are seconds on the caller's clock.
+
+Given the reception time ``t_recv`` of a message (the caller's clock when it arrived), its
+stamp is first checked against that clock and mapped onto it by the stream's
+:class:`~.sender_clock.SenderClock` (``max_clock_skew``; a sensor whose clock is off by a few
+seconds works). Without it (``t_recv`` None: the offline engine) stamps are used as they are.
 """
 from __future__ import annotations
 
@@ -17,8 +22,9 @@ from typing import Sequence
 import numpy as np
 
 from .filters import LowPassFilter
-from .inputs import (ImplausibleWrench, InputError, JointInput, JointSample, WrenchGate,
-                     WrenchSample)
+from .inputs import (ImplausibleJointState, ImplausibleWrench, InputError, JointInput,
+                     JointSample, WrenchGate, WrenchSample)
+from .sender_clock import ImplausibleStamp, SenderClock
 from .tare import still, Tare
 from ..config.params import RuntimeConfig
 from ..model.robot_model import RobotModel, TaskKinematics
@@ -34,6 +40,7 @@ class LatestInputs:
         self.model, self.counters = model, counters
         self.last_fault = ''
         self.gate = WrenchGate(model.model.existFrame, 0.0, 0.0)
+        self.clocks = {'joint_state': SenderClock('joint state'), 'wrench': SenderClock('wrench')}
         self.filter = LowPassFilter(rt.force_filter_hz)
         self.state: JointSample | None = None
         self.wrench: WrenchSample | None = None
@@ -47,7 +54,15 @@ class LatestInputs:
         """Install the joint order, wrench limits and period of a validated configuration."""
         self._rt = rt
         self._joints = JointInput(self.model.joint_names, rt.joints)
+        # a jump is refused up to 2 state_timeout after the last accepted state: a burst
+        # longer than state_timeout is safe mode (stale), then the new position is adopted
+        self._joints.configure_checks(self.model.velocity_limits, rt.joint_velocity_margin,
+                                      rt.max_joint_jump, rt.max_joint_acceleration,
+                                      2.0 * rt.state_timeout)
         self.gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
+        for clock in self.clocks.values():
+            clock.configure(rt.max_clock_skew, rt.state_timeout, 2.0 * rt.state_timeout,
+                            0.5 / rt.rate_hz)
         self._period = 1.0 / rt.rate_hz
         R_W_root = self.model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[1]
         g_W = R_W_root @ self.model.model.gravity.linear
@@ -65,24 +80,37 @@ class LatestInputs:
         self.state = self.wrench = None
         self.gate.reset()
         self.filter.reset()
+        for clock in self.clocks.values():
+            clock.reset()
 
     def on_joint_state(self, names: Sequence[str], q: Sequence[float],
-                       qdot: Sequence[float] | None, t: float) -> None:
+                       qdot: Sequence[float] | None, t: float,
+                       t_recv: float | None = None) -> None:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
-        t_last = -math.inf if self.state is None else self.state.t
         try:
-            self.state = self._joints.sample(names, q, qdot, t, t_last)
+            if t_recv is not None:
+                t = self.clocks['joint_state'].receive(t, t_recv)
+            self.state = self._joints.sample(names, q, qdot, t, self.state)
+        except ImplausibleStamp as exc:
+            self._fault('joint_state_clock_implausible', exc)
+        except ImplausibleJointState as exc:
+            self._fault('joint_state_implausible', exc)
         except InputError as exc:
             self._fault('joint_state_dropped', exc)
 
-    def on_wrench(self, frame_id: str, force: Sequence[float], t: float) -> None:
+    def on_wrench(self, frame_id: str, force: Sequence[float], t: float,
+                  t_recv: float | None = None) -> None:
         """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
         raw = force
         if self._offset is not None and len(force) == 3:
             ox, oy, oz = self._offset
             force = (force[0] - ox, force[1] - oy, force[2] - oz)
         try:
+            if t_recv is not None:
+                t = self.clocks['wrench'].receive(t, t_recv)
             sample = self.gate.check(frame_id, force, t)
+        except ImplausibleStamp as exc:
+            self._fault('wrench_clock_implausible', exc)
         except ImplausibleWrench as exc:
             self._fault('wrench_implausible', exc)
         except InputError as exc:

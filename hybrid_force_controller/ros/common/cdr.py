@@ -20,8 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ['CdrError', 'JointStateData', 'RawMessage', 'WrenchData', 'read_float64_array',
-           'read_joint_state', 'read_wrench_stamped']
+__all__ = ['CdrError', 'JointStateData', 'RawMessage', 'WrenchData', 'double_spans',
+           'read_float64_array', 'read_joint_state', 'read_wrench_stamped']
 
 
 class CdrError(ValueError):
@@ -186,3 +186,13 @@ def _float64_array_spans(r: _Reader) -> list[tuple[int, int]]:
 
 _SPANS = {'joint_state': _joint_state_spans, 'wrench_stamped': _wrench_spans,
           'float64_array': _float64_array_spans}
+
+
+def double_spans(kind: str, buf: bytes) -> list[tuple[int, int]]:
+    """
+    Return (byte offset, count) of each double array of a serialized message.
+
+    ``kind`` as for :class:`RawMessage`: ``joint_state`` (position, velocity, effort),
+    ``wrench_stamped`` (force, torque) or ``float64_array``. Raises :class:`CdrError`.
+    """
+    return _SPANS[kind](_Reader(bytes(buf)))

@@ -209,19 +209,28 @@ class ControlLoop:
             self.runtime.on_path(*self._path.popleft())
 
     def _on_joint_state(self, raw: bytes) -> None:
+        """
+        Decode, hand the state to the runtime with its reception time, tick if it is new.
+
+        The runtime checks the stamp against the loop clock at reception and maps it onto
+        that clock (sender_clock.py); the tick goes by the mapped stamp.
+        """
         msg = read_joint_state(raw)
-        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()  # unstamped: reception time
+        t_recv = self._now()
+        t = msg.stamp_s if msg.stamp_s > 0.0 else t_recv  # unstamped: reception time
         self._apply_handovers()
-        self.runtime.on_joint_state(msg.names, msg.position, msg.velocity, t)
+        self.runtime.on_joint_state(msg.names, msg.position, msg.velocity, t, t_recv)
         self._marks[0] = self._marks[1] = time.perf_counter()
+        t = self.runtime.state_stamp
         new, self._t_state = t > self._t_state, t
         if new and self.active and self.settings.tick_mode != 'timer':
             self._tick(t)
 
     def _on_wrench(self, raw: bytes) -> None:
         msg = read_wrench_stamped(raw)
-        t = msg.stamp_s if msg.stamp_s > 0.0 else self._now()
-        self.runtime.on_wrench(msg.frame_id, msg.force, t)
+        t_recv = self._now()
+        t = msg.stamp_s if msg.stamp_s > 0.0 else t_recv
+        self.runtime.on_wrench(msg.frame_id, msg.force, t, t_recv)
 
     def _on_timer(self) -> None:
         if self.active:

@@ -37,7 +37,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from std_msgs.msg import String
 
 from .control_loop import ControlLoop, LoopSettings
-from .diagnostics import controller_status, EVENT_COUNTERS, loop_report
+from .diagnostics import clock_offset_warnings, controller_status, EVENT_COUNTERS, loop_report
 from .path_topics import PathTopics
 from .task_interface import TaskInterface
 from .telemetry import ControllerOutputs, TOPIC_COMMANDS
@@ -93,6 +93,7 @@ class ControllerNode(LifecycleNode):
         self.create_timer(TELEMETRY_DRAIN_S, self._guarded('telemetry', self._on_telemetry),
                           clock=steady)
         self._events: dict[str, int] = {}
+        self._clock_warned: set[str] = set()  # input streams whose clock offset was logged
         self._scheduling_reported = False
         self._node_scheduling: list[str] = []
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
@@ -340,6 +341,8 @@ class ControllerNode(LifecycleNode):
             counts = {k: self.runtime.counters[k] for k in EVENT_COUNTERS}
             new_events = {k: v - self._events.get(k, 0) for k, v in counts.items()}
             self._events = counts
+            for warning in clock_offset_warnings(self.runtime.clock_offsets(), self._clock_warned):
+                self.get_logger().warning(warning)
             extra['delay_margin_ms'] = self.runtime.delay_margin(self.params) * 1e3
             extra.update(self.task.report() if self.task is not None else {})
         if self.last_error and self.runtime is None:

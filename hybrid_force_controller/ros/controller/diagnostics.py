@@ -10,15 +10,19 @@ from std_msgs.msg import Header
 
 from ...core.runtime.controller_runtime import ControllerRuntime, Mode
 
-__all__ = ['EVENT_COUNTERS', 'controller_status', 'loop_report']
+__all__ = ['CLOCK_OFFSET_WARN_S', 'EVENT_COUNTERS', 'clock_offset_warnings',
+           'controller_status', 'loop_report']
 
 _LEVEL = {Mode.RUNNING: DiagnosticStatus.OK, Mode.WAITING: DiagnosticStatus.WARN,
           Mode.APPROACH: DiagnosticStatus.WARN, Mode.NO_SURFACE: DiagnosticStatus.ERROR,
           Mode.SAFE: DiagnosticStatus.ERROR}
 # counters whose increase since the last status makes it at least WARN (a fault shorter
-# than the 1 s between two statuses is still reported)
-EVENT_COUNTERS = ('joint_state_dropped', 'wrench_dropped', 'wrench_implausible',
-                  'safe_mode_entries', 'approach_entries', 'stalls')
+# than the 1 s between two statuses is still reported); the first ones count refused inputs
+DROP_COUNTERS = ('joint_state_dropped', 'joint_state_implausible',
+                 'joint_state_clock_implausible', 'wrench_dropped', 'wrench_implausible',
+                 'wrench_clock_implausible')
+EVENT_COUNTERS = DROP_COUNTERS + ('safe_mode_entries', 'approach_entries', 'stalls')
+CLOCK_OFFSET_WARN_S = 0.05  # a sender's clock this far off: logged once (it is not synced)
 EPISODE_WARN_S = 5.0  # an episode this long (adaptation frozen) is reported
 
 
@@ -31,7 +35,7 @@ def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
     measured delay near the delay margin and a stiffness estimate near k_max.
     """
     out = []
-    dropped = sum(new_events.get(k, 0) for k in EVENT_COUNTERS[:3])
+    dropped = sum(new_events.get(k, 0) for k in DROP_COUNTERS)
     if dropped:
         out.append(f'{dropped} inputs dropped: {runtime.last_fault}')
     if new_events.get('safe_mode_entries', 0):
@@ -91,6 +95,8 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                   **runtime.counters, 'last_input_fault': runtime.last_fault,
                   'last_safe_reason': runtime.last_safe_reason,
                   'theta_hat': ', '.join(f'{v:.4g}' for v in runtime.theta_hat),
+                  **{f'{k}_clock_offset_s': f'{v:.6g}'
+                     for k, v in runtime.clock_offsets().items()},
                   **_recovery_values(runtime),
                   **{f'stiffness_{k}': (f'{v:.4g}' if isinstance(v, float) else v)
                      for k, v in runtime.stiffness_status()._asdict().items()}}
@@ -101,6 +107,25 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                    for k, v in extra.items() if k != 'warnings'})
     status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])
+
+
+def clock_offset_warnings(offsets: Mapping[str, float], warned: set) -> list[str]:
+    """
+    Return a warning for each stream whose clock offset first exceeds CLOCK_OFFSET_WARN_S.
+
+    ``offsets`` are :meth:`ControllerRuntime.clock_offsets`; ``warned`` the streams already
+    reported (updated), so each is logged once.
+    """
+    out = []
+    for stream, offset in offsets.items():
+        if abs(offset) > CLOCK_OFFSET_WARN_S and stream not in warned:
+            warned.add(stream)
+            out.append(f"{stream.replace('_', ' ')} stamps are {abs(offset):.3f} s "
+                       f"{'ahead of' if offset > 0 else 'behind'} the controller's clock: "
+                       'the sender is not synced; the controller measures the offset and '
+                       'removes it (max_clock_skew; /diagnostics '
+                       f'{stream}_clock_offset_s)')
+    return out
 
 
 def _recovery_values(runtime: ControllerRuntime) -> dict[str, object]:

@@ -67,8 +67,16 @@ class _Diagnostics:
         self.params = AsyncParameterClient(self.node, PKG)
         self.executor = make_executor('single_threaded', self.context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _spin(self) -> None:
+        from rclpy._rclpy_pybind11 import RCLError
+        from rclpy.executors import ExternalShutdownException
+        try:
+            self.executor.spin()
+        except (ExternalShutdownException, RCLError):  # close() shut the context down
+            pass
 
     def _on_diag(self, msg: Any) -> None:
         for st in msg.status:
@@ -101,11 +109,11 @@ class _Diagnostics:
         raise TimeoutError(f'no /diagnostics from {hardware_id} within {timeout} s')
 
     def close(self) -> None:
-        import rclpy
-        self.executor.shutdown(timeout_sec=5.0)
-        self.node.destroy_node()
+        import rclpy  # the context first: spin() ends before anything is destroyed
         rclpy.try_shutdown(context=self.context)
         self.thread.join(5.0)
+        self.executor.shutdown(timeout_sec=5.0)
+        self.node.destroy_node()
 
 
 def _start(name: str, argv: list[str], env: dict[str, str], log_dir: Path,

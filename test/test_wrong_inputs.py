@@ -1,0 +1,216 @@
+"""
+Wrong inputs a real cell sends, in real time over DDS (issue 25), beside the real sim.
+
+One sim (masses 50 % off) whose sensor clocks are off for the whole run (joint states 2 s
+ahead, the wrench 2 s behind: drivers on PCs that are not synced) and one controller with
+``config/params.yaml`` run for the module; an :class:`~hybrid_force_controller.ros.programs.
+injector.Injector` in this process publishes on the controller's input topics. In order: a
+copy of the newest wrench stamped an hour ahead, one a minute ahead, the same for the joint
+states, a joint state with a 0.2 rad glitch on joint1, one with joint2 at 40 rad/s (the URDF
+allows 10), and a fuzz of 1000 corrupted serialized messages over 2 s on both inputs. Each is
+refused with the reason (/diagnostics ``last_input_fault`` and the counters), the true force
+(``sim/contact_wrench``) stays within about 3x the issue's targets and in contact, and the
+controller stays up. Last, the sim is restarted with the offsets swapped (joint states 2 s
+behind, the wrench 2 s ahead) and the loop tracks again.
+
+The controller keeps a burst of its inputs (``sensor_depth`` 10) so that a single injected
+message cannot be superseded by the sim's next one before the loop reads it. Times are the
+true force's stamps (the sim's wall clock); waits have a wall timeout against hangs only;
+the exact figures (five runs per case) are in docs/results.md (``wrong_inputs``).
+"""
+from __future__ import annotations
+
+import math
+import re
+import time
+
+from hybrid_force_controller.core.runtime.contact import in_contact
+from hybrid_force_controller.ros.programs.injector import Injector
+from hybrid_force_controller.ros.programs.tracking import TrackingMeter
+import numpy as np
+import pytest
+from ros_helpers import domain_id, MASSES_OFF, RealTimeRig, wait_for
+
+
+CTRL = 'hybrid_force_controller'
+F_D = 1.0
+N_W = np.array([0.0, -1.0, 0.0])
+# about 3x the issue's targets: RMS force error 0.05 N, position 0.5 mm, peak 3 N
+RMS_F, RMS_X, PEAK_F = 0.15, 1.5e-3, 3.0 * 3.0
+WINDOW_S = 1.5  # of true force checked after each single message
+
+
+def _offsets(js: float, wrench: float) -> list[str]:
+    return [*MASSES_OFF, '-p', f'joint_state_clock_offset:={js}',
+            '-p', f'wrench_clock_offset:={wrench}']
+
+
+class Cell:
+    """The rig (sim with sensor clocks off, controller), the injector, the tracking."""
+
+    def __init__(self, tmp_path, js_offset: float, wrench_offset: float) -> None:
+        self.rig = RealTimeRig(tmp_path, domain_id('wrong_inputs'),
+                               sim_args=_offsets(js_offset, wrench_offset))
+        self.rig.ctrl.args += ['-p', 'sensor_depth:=10']
+        self.injector = Injector(self.rig.log.node)
+        self.tracking = TrackingMeter(self.rig.log.node, N_W, F_D)
+        self.closed = False
+
+    def start(self) -> 'Cell':
+        self.rig.start()
+        wait_for(lambda: self.now - self.rig.t_touch > 2.0 and self.injector.ready()
+                 and self.rig.settled(F_D, hold_s=1.0) and self._tracking_covers(),
+                 'the force to settle', alive=self.rig.procs, poll=0.05)
+        return self
+
+    def _tracking_covers(self) -> bool:
+        """Say whether the telemetry (~/x, ~/x_desired) covers the last second."""
+        t = self.now
+        return not math.isnan(self.tracking.figures(t - 1.0, t - 0.5)['rms_position_error_m'])
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self.rig.close()
+
+    @property
+    def now(self) -> float:
+        return self.rig.log.latest_t()
+
+    def diag(self) -> dict:
+        return self.rig.log.fresh_diag(CTRL, alive=self.rig.procs)
+
+    def refused(self, counter: str, before: dict) -> dict:
+        """Wait for a status whose ``counter`` grew since ``before``; return it."""
+        wait_for(lambda: self.rig.log.diag(CTRL).get(counter, 0) > before[counter],
+                 f'{counter} to count the injected message', alive=self.rig.procs,
+                 timeout=30.0)
+        return self.rig.log.diag(CTRL)
+
+    def check_force(self, t0: float, t1: float, rms_f: float = RMS_F) -> np.ndarray:
+        """
+        Assert the true force over [t0, t1]: RMS error, peak, contact kept; return it.
+
+        Times are the sim's stamps of the true force: the wall clock (``time.time()``).
+        """
+        wait_for(lambda: self.now >= t1, f'force up to {t1:.2f}', alive=self.rig.procs)
+        _, f = self.rig.log.forces(t0, t1)
+        assert f.size > 10
+        rms = float(np.sqrt(np.mean((f - F_D) ** 2)))
+        assert rms <= rms_f and f.max() <= PEAK_F, (rms, f.max())
+        assert all(in_contact(v) for v in f), f'contact lost: min {f.min():.3f} N'
+        assert all(p.alive for p in self.rig.procs)
+        return f
+
+
+@pytest.fixture(scope='module')
+def cell(tmp_path_factory):
+    c = Cell(tmp_path_factory.mktemp('wrong_inputs'), 2.0, -2.0)
+    try:
+        yield c.start()
+    finally:
+        c.close()
+
+
+def single(cell: Cell, send, counter: str, reason: str) -> None:
+    """Send one wrong message: refused with ``reason`` (a regex), the force within bounds."""
+    before = cell.diag()
+    t0 = time.time()
+    send()
+    after = cell.refused(counter, before)
+    assert re.search(reason, after['last_input_fault']), after['last_input_fault']
+    assert after['safe_mode_entries'] == before['safe_mode_entries'], after['last_safe_reason']
+    f = cell.check_force(t0, t0 + WINDOW_S)
+    print(f"{after['last_input_fault']}: refused; force {f.min():.3f}..{f.max():.3f} N over "
+          f'{WINDOW_S} s')
+
+
+def test_sensor_clocks_off_for_the_whole_run_are_measured_and_the_loop_tracks(cell):
+    """Joint states 2 s ahead, the wrench 2 s behind: measured, logged once, tracking."""
+    t1 = cell.now
+    cell.check_force(t1 - 1.0, t1)
+    d = cell.diag()
+    assert d['joint_state_clock_offset_s'] == pytest.approx(2.0, abs=0.02)
+    assert d['wrench_clock_offset_s'] == pytest.approx(-2.0, abs=0.02)
+    assert d['joint_state_clock_implausible'] == d['wrench_clock_implausible'] == 0
+    fig = cell.tracking.figures(t1 - 1.0, t1)
+    assert fig['rms_position_error_m'] <= RMS_X, fig
+    log = cell.rig.ctrl.log_since()  # one warning per stream
+    assert log.count('joint state stamps are 2.0') + log.count('are 1.99') == 1, log[-3000:]
+    assert log.count('wrench stamps are 2.0') == 1, log[-3000:]
+
+
+# the copies are of stamps already off by the sensor's offset (2 s ahead or behind)
+CLOCK_REASON = r"{} stamp is {}(\.\d+)? s ahead of the controller's clock \(max_clock_skew 10 s\)"
+SAID = {3600.0: '3(59[89]|60[0-2])', 60.0: '(5[789]|6[0-2])'}
+
+
+@pytest.mark.parametrize('ahead', [3600.0, 60.0])
+def test_one_wrench_stamped_ahead_is_refused(cell, ahead):
+    single(cell, lambda: cell.injector.wrench(ahead), 'wrench_clock_implausible',
+           CLOCK_REASON.format('wrench', SAID[ahead]))
+
+
+@pytest.mark.parametrize('ahead', [3600.0, 60.0])
+def test_one_joint_state_stamped_ahead_is_refused(cell, ahead):
+    single(cell, lambda: cell.injector.joint_state(ahead), 'joint_state_clock_implausible',
+           CLOCK_REASON.format('joint state', SAID[ahead]))
+
+
+def test_a_position_glitch_of_0_2_rad_is_refused(cell):
+    single(cell, lambda: cell.injector.joint_state(dq=[0.2, 0.0]), 'joint_state_implausible',
+           r'implausible joint state: joint1 moved \+0\.(2|19)')
+
+
+def test_a_velocity_beyond_the_urdf_limit_is_refused(cell):
+    single(cell, lambda: cell.injector.joint_state(dv=[0.0, 40.0]), 'joint_state_implausible',
+           "joint2's velocity")
+
+
+def test_a_fuzz_of_1000_corrupted_messages_over_2_s(cell):
+    """
+    The CDR readers and the checks refuse what is wrong; force peak bounded, in contact.
+
+    Corruptions within the plausibility bounds (a bit of a velocity, a force changing slower
+    than wrench_rate_limit) are indistinguishable from real readings and reach the law: the
+    issue's target is the force peak (3 N), not its RMS.
+    """
+    before = cell.diag()
+    t0 = time.time()  # the sim stamps the true force with the wall clock
+    cell.injector.start_fuzz(1000, seed=25)
+    wait_for(cell.injector.fuzz_done.is_set, 'the fuzz to be sent', alive=cell.rig.procs)
+    t1 = time.time()
+
+    def errors(d: dict) -> dict:  # every refused message, decode errors too
+        return {k: d.get(f'callback_errors_{k}', 0) - before.get(f'callback_errors_{k}', 0)
+                for k in ('joint_states', 'wrench')}
+    wait_for(lambda: min(errors(cell.rig.log.diag(CTRL)).values()) > 100,
+             'the controller to refuse the fuzz', alive=cell.rig.procs)
+    f = cell.check_force(t0, t1 + 1.0, rms_f=math.inf)  # the issue's target: the peak
+    after = cell.diag()
+    grew = {k: after[k] - before[k] for k in (
+        'joint_state_dropped', 'joint_state_implausible', 'joint_state_clock_implausible',
+        'wrench_dropped', 'wrench_implausible', 'wrench_clock_implausible')}
+    assert all(grew.values()), grew
+    assert after['mode'] == 'running', after['message']
+    span = cell.injector.fuzz_span[1] - cell.injector.fuzz_span[0]
+    print(f'fuzz: sent over {span:.2f} s; refused {grew}, callback errors {errors(after)}; '
+          f'force '
+          f'{f.min():.3f}..{f.max():.3f} N over {t1 + 1.0 - t0:.1f} s')
+
+
+def test_swapped_offsets_for_a_whole_run(cell, tmp_path):
+    """Restart with joint states 2 s behind and the wrench 2 s ahead: the loop tracks."""
+    cell.close()
+    other = Cell(tmp_path, -2.0, 2.0)
+    try:
+        other.start()
+        t1 = other.now
+        other.check_force(t1 - 1.0, t1)
+        d = other.diag()
+        assert d['joint_state_clock_offset_s'] == pytest.approx(-2.0, abs=0.02)
+        assert d['wrench_clock_offset_s'] == pytest.approx(2.0, abs=0.02)
+        fig = other.tracking.figures(t1 - 1.0, t1)
+        assert fig['rms_position_error_m'] <= RMS_X, fig
+    finally:
+        other.close()

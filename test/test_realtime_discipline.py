@@ -29,7 +29,7 @@ import time
 
 from hybrid_force_controller.core.runtime.contact import in_contact
 from hybrid_force_controller.ros.common.scheduling import one_cpu_reason
-from hybrid_force_controller.ros.programs.bench import storm_values
+from hybrid_force_controller.ros.programs.run_faults import storm_values
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter

@@ -81,10 +81,10 @@ def test_held_point_survives_an_unrelated_set_and_is_reached(model):
 def test_clock_restart_resets_integral_and_rate_limiter(model):
     loop = Loop(model, max_effort_rate=0.5)
     run(loop, 3000)
-    assert loop.rt.ctrl.h != 0.0 and loop.rt._limiter._last is not None
+    assert loop.rt.ctrl.h != 0.0 and loop.rt._command.limiter._last is not None
     loop.rt.tick(0.0)  # the clock jumped back
     assert loop.rt.counters['clock_restarts'] == 1
-    assert loop.rt.ctrl.h == 0.0 and loop.rt._limiter._last is None
+    assert loop.rt.ctrl.h == 0.0 and loop.rt._command.limiter._last is None
 
 
 def test_safe_mode_respects_the_rate_limit(model):

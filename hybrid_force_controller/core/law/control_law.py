@@ -64,6 +64,7 @@ import numpy as np
 from .adaptation import adapt_theta, adaptation_weight
 from .reference import Reference
 from ..config.params import LawGains
+from ..model.linalg import small_inverse
 from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
@@ -122,31 +123,6 @@ class _Compliance:
     def __init__(self) -> None:
         self.k_s = self.c = self.lambda2 = self.h_limit = self.c_rate = 0.0
         self.override: float | None = None  # k_s set by set_k_s (None: the gains')
-
-
-def small_inverse(A: np.ndarray) -> np.ndarray:
-    """
-    Inverse of a square matrix; closed form (adjugate / det) for 2 x 2 and 3 x 3.
-
-    The hot path: the Jacobian of a square arm, ``J M^-1 J^T`` of a redundant one
-    (``numpy.linalg.inv`` costs ~8 us on these sizes, the closed forms ~1-2 us).
-    """
-    if A.shape == (2, 2):
-        (a, b), (c, d) = A.tolist()
-        det = a * d - b * c
-        if det == 0.0:
-            raise np.linalg.LinAlgError('singular matrix (a singular pose)')
-        return np.array(((d / det, -b / det), (-c / det, a / det)))
-    if A.shape == (3, 3):
-        (a, b, c), (d, e, f), (g, h, i) = A.tolist()
-        adj = ((e * i - f * h, c * h - b * i, b * f - c * e),
-               (f * g - d * i, a * i - c * g, c * d - a * f),
-               (d * h - e * g, b * g - a * h, a * e - b * d))
-        det = a * adj[0][0] + b * adj[1][0] + c * adj[2][0]
-        if det == 0.0:
-            raise np.linalg.LinAlgError('singular matrix (a singular pose)')
-        return np.array(adj) / det
-    return np.linalg.inv(A)
 
 
 class HybridForceController:

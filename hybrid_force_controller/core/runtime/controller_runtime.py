@@ -1,11 +1,12 @@
 """
 What the controller node does between messages, as plain arrays (no rclpy here).
 
-The node converts messages to arrays, calls one method of :class:`ControllerRuntime`, and
-converts the result back; the offline engine (engine.py) drives the same object. The
-runtime owns the latest inputs (latest_inputs.py: checked, plausible, their staleness, the
-force filter), the motion (motion.py: the reference along the surface, the approach along n),
-the run's times (run_clock.py), the contact state and an explicit mode (:class:`Mode`):
+The node converts messages to arrays, calls one method of :class:`ControllerRuntime` (its inputs
+and queries: runtime_interface.py; its tick: here), and converts the result back; the offline
+engine (engine.py) drives the same object. The runtime owns the latest inputs (latest_inputs.py:
+checked, plausible, their staleness, the force filter), the motion (motion.py: the reference along
+the surface, the approach along n), the run's times (run_clock.py), the contact state and an
+explicit mode (:class:`Mode`):
 
 * ``WAITING``: no joint state or wrench yet (after start-up or a clock restart);
 * ``RUNNING``: the law of [1] with its force loop along n (control_law.py);
@@ -28,26 +29,23 @@ are seconds on the caller's clock.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
 
 import numpy as np
 
 from .contact import ContactDetector, in_contact
-from .effort import EffortLimiter, SafeHold
+from .effort import CommandStage, SafeHold
 from .inputs import InputError
 from .latest_inputs import LatestInputs
 from .modes import Mode, TickOutput
 from .motion import Motion, reference_changed
 from .recovery import Recovery
 from .run_clock import RunClock
-from .tare import Tare
+from .runtime_interface import RuntimeInterface
 from ..config.params import ControllerParams
-from ..law.bumpless import RestartBlend
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
-from ..law.path import PathPlan
 from ..law.reference import Reference
 from ..law.set_validation import SetValidator
-from ..law.stiffness_loop import StiffnessLoop, StiffnessStatus
+from ..law.stiffness_loop import StiffnessLoop
 from ..model.robot_model import ModelError, RobotModel
 
 __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
@@ -61,7 +59,7 @@ _COUNTERS = ('ticks', 'joint_state_dropped', 'joint_state_implausible',
              'late_states', 'stalls')
 
 
-class ControllerRuntime:
+class ControllerRuntime(RuntimeInterface):
     """Latest inputs + control law + modes and safety logic for one arm."""
 
     def __init__(self, model: RobotModel, params: ControllerParams) -> None:
@@ -72,40 +70,17 @@ class ControllerRuntime:
         self.last_safe_reason = ''
         self.last_stall_s = 0.0  # the gap of the last stall, s
         self._in = LatestInputs(model, params.runtime, self.counters)
-        self._limiter = EffortLimiter(params.runtime.effort_limits)
+        self._command = CommandStage(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
         self._motion = Motion(params, model.task_index)
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self.validator = SetValidator(model)
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
-        self._tau_last: np.ndarray | None = None  # the last effort out (model order)
-        self._bumpless = RestartBlend()
         self._restarted = False  # a restart's episode begins at the next start
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
-    @property
-    def params(self) -> ControllerParams:
-        return self._params
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self._params.runtime.joints
-
-    def validate(self, values: dict[str, Any]) -> ControllerParams:
-        """Validate a full set of values (set_validation.py; for the node's thread)."""
-        return self.validator.validate(values)
-
-    @property
-    def operating_pose(self) -> np.ndarray | None:
-        """Return the pose the delay margin is checked at: the first joint state (or None)."""
-        return self.validator.operating_pose
-
-    def delay_margin(self, params: ControllerParams | None = None) -> float:
-        """Return the loop delay the gains tolerate at the operating pose, s (margin.py)."""
-        return self.validator.delay_margin(params or self._params)
-
     def set_params(self, params: ControllerParams) -> None:
         """
         Install a validated set atomically; it takes effect on the next tick.
@@ -127,113 +102,12 @@ class ControllerRuntime:
         self.ctrl.set_gains(params.law)
         self._stiffness.configure(params.stiffness, params.law.n, self.ctrl)
         self._in.configure(rt)
-        order = [self.model.joint_names.index(j) for j in rt.joints]
-        self._cmd_order = None if order == list(range(len(order))) else order
-        self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
+        self._command.configure(self.model.joint_names, rt.joints, rt.effort_limits,
+                                rt.max_effort_rate)
         self._motion.configure(params)
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
         self.ctrl.set_force_setpoint(self._motion.force.value, self._motion.force.fdot)
-
-    # ------------------------------------------------------------------ inputs
-    def on_joint_state(self, names: Sequence[str], q: Sequence[float],
-                       qdot: Sequence[float] | None, t: float,
-                       t_recv: float | None = None) -> None:
-        """
-        Store a joint state mapped by name (reordered and extra joints are fine).
-
-        ``t`` is its stamp; ``t_recv`` (optional) the caller's clock when it arrived: the
-        stamp is then checked against it and mapped onto it (latest_inputs.py).
-        """
-        self._in.on_joint_state(names, q, qdot, t, t_recv)
-        if self.validator.operating_pose is None and self._in.state is not None:
-            self.validator.note_pose(self._in.state.q)
-
-    def on_wrench(self, frame_id: str, force: Sequence[float], t: float,
-                  t_recv: float | None = None) -> None:
-        """Store the force the environment exerts on the tool, in ``frame_id`` (t_recv: above)."""
-        self._in.on_wrench(frame_id, force, t, t_recv)
-
-    def clock_offsets(self) -> dict[str, float]:
-        """Return each input stream's measured clock offset, s (NaN before it is measured)."""
-        return {k: math.nan if c.offset is None else c.offset for k, c in self._in.clocks.items()}
-
-    def start_tare(self, tare: Tare) -> None:
-        """
-        Begin averaging the raw force reading (tare.py): the sensor's bias, for ``wrench_offset``.
-
-        Aborted at once, saying why, in contact, while the arm moves or before any input.
-        """
-        if self._contact.active:
-            tare.abort('in contact: tare with the tool still and off the surface')
-        else:
-            self._in.start_tare(tare)
-
-    @property
-    def last_fault(self) -> str:
-        """Return why the latest rejected input was rejected ('' if none was)."""
-        return self._in.last_fault
-
-    def on_reference(self, x_d_W: Sequence[float]) -> None:
-        """Hold a point (base frame), blended in; a path ends; a ref_*/n change releases it."""
-        x = np.asarray(x_d_W, dtype=float)
-        if x.shape != (3,) or not np.all(np.isfinite(x)):
-            raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
-        self._motion.hold(self.run_time, x)
-
-    def on_path(self, plan: PathPlan | None, seq: int = 0) -> None:
-        """
-        Follow a planned path number ``seq`` (law/path.py), blended in (motion.py); None stops.
-
-        Its clock runs only in the force loop in contact (path_run.py); at its end the
-        reference holds the last point. A ``ref_*`` or ``n`` change releases it.
-        """
-        if plan is None:
-            self._motion.stop(self.run_time)
-        else:
-            self._motion.follow(self.run_time, plan, seq)
-
-    # ------------------------------------------------------------------ queries
-    @property
-    def run_time(self) -> float:
-        """Time since the run started, at the latest joint state (the reference's time)."""
-        return 0.0 if self._in.state is None else self._clock.tau(self._in.state.t)
-
-    @property
-    def state_stamp(self) -> float:
-        """Stamp of the latest joint state on the caller's clock, s (-inf before the first)."""
-        return -math.inf if self._in.state is None else self._in.state.t
-
-    @property
-    def f_d_W(self) -> np.ndarray:
-        """Return the desired force f_d n, base frame (f_d ramped to a new value: motion.py)."""
-        return self._motion.f_d_W
-
-    @property
-    def theta_hat(self) -> np.ndarray:
-        return self.ctrl.theta_hat
-
-    @property
-    def in_contact(self) -> bool:
-        """Return the contact state (hysteresis on the filtered normal force)."""
-        return self._contact.active
-
-    def stiffness_status(self) -> StiffnessStatus:
-        """
-        Return the stiffness estimate and the k_s / lambda2 in use, for /diagnostics.
-
-        /diagnostics reports WARN when ``near_k_max``.
-        """
-        return self._stiffness.status(self.ctrl)
-
-    def desired_position(self, t: float) -> np.ndarray:
-        """Return the reference position at time ``t`` on the caller's clock (base frame)."""
-        return self.reference(t).x_d_W
-
-    def reference(self, t: float) -> Reference:
-        """Return the reference at time ``t`` on the caller's clock (a path: at its clock)."""
-        t0 = self._clock.t0
-        return self._motion(0.0 if t0 is None else t - t0)
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
@@ -273,9 +147,7 @@ class ControllerRuntime:
             self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
         self._motion.r_n, self._motion.rdot_n = out.r_n, out.rdot_n
         self._observe(t, f_n, out.e, touching)
-        tau, saturated = self._limiter(out.tau)
-        self.counters['saturated_ticks'] += saturated
-        return self._running_output(tau, out, ref, f_W)
+        return self._running_output(out.tau, out, ref, f_W)
 
     def _transitions(self, touching: bool, stalled: bool, f_W: np.ndarray, t: float) -> None:
         """Change mode on contact, a (re)start or a stall; begin the episodes they start."""
@@ -355,7 +227,7 @@ class ControllerRuntime:
         self._clock = RunClock()
         self.mode = Mode.WAITING
         self._contact.reset()
-        self._limiter.reset()
+        self._command.restart(blend=False)
         self.ctrl.reset(self.ctrl.theta_hat)
 
     def restart(self) -> None:
@@ -366,8 +238,7 @@ class ControllerRuntime:
         effort blends from the last one out, which the hardware held (bumpless.py).
         """
         self.mode = Mode.WAITING
-        self._limiter.reset()
-        self._bumpless.arm(self._tau_last)
+        self._command.restart(blend=True)
         self._restarted = True
 
     # ------------------------------------------------------------------ episodes (recovery.py)
@@ -399,14 +270,13 @@ class ControllerRuntime:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
             self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
-            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._tau_last)
+            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last)
             self._clock.pause(s.t)  # the reference pauses (_start)
             self._motion.pause_path()
         self.mode = Mode.SAFE
         fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
                                      law.k_null, fresh)
-        tau, _ = self._limiter(tau)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)
 
     def _running_output(self, tau: np.ndarray, out: ControlOutput, ref: Reference,
@@ -421,15 +291,13 @@ class ControllerRuntime:
                 ref: Reference | None = None, e: np.ndarray | None = None) -> TickOutput:
         self.mode, self.status = mode, status
         if tau is not None:
-            tau = self._bumpless(tau, self._clock.t_tick)
-            self._tau_last = tau
+            tau, saturated = self._command(tau, self._clock.t_tick)
+            self.counters['saturated_ticks'] += saturated and mode != Mode.SAFE
         x_W = np.zeros(3) if x_W is None else x_W
         f = np.zeros(3) if f_W is None else f_W.copy()
         e_W = np.zeros(3)
         if e is not None:
             e_W[self.model.task_index] = e
-        if tau is not None and self._cmd_order is not None:
-            tau = tau[self._cmd_order]  # (efforts are fresh arrays: none is ever mutated)
         return TickOutput(tau, mode, x_W, x_W if ref is None else ref.x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat, self._motion.path_progress(),

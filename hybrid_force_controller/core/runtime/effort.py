@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import math
 
+from typing import Sequence
+
 import numpy as np
 
+from ..law.bumpless import RestartBlend
 from ..model.robot_model import RobotModel
 
-__all__ = ['EffortLimiter', 'SafeHold']
+__all__ = ['CommandStage', 'EffortLimiter', 'SafeHold']
 
 
 class EffortLimiter:
@@ -43,6 +46,41 @@ class EffortLimiter:
         out = np.minimum(np.maximum(out, self._lower), self.limits)
         self._last = out
         return out, out.tolist() != tau.tolist()
+
+
+class CommandStage:
+    """
+    The effort's way out: the limits, the bumpless blend after a restart, the command order.
+
+    :meth:`__call__` limits an effort (model order), blends it from the one the hardware held
+    after a restart (law/bumpless.py), keeps it as :attr:`tau_last` and returns it in the order
+    of ``joints`` (a fresh array: none is ever mutated).
+    """
+
+    def __init__(self, limits: np.ndarray) -> None:
+        self.limiter = EffortLimiter(limits)
+        self.blend = RestartBlend()
+        self.tau_last: np.ndarray | None = None  # the last effort out (model order)
+        self.order: list[int] | None = None
+
+    def configure(self, model_joints: Sequence[str], joints: Sequence[str], limits: np.ndarray,
+                  max_rate: float) -> None:
+        """Install the limits and the command order (None: the model's)."""
+        order = [list(model_joints).index(j) for j in joints]
+        self.order = None if order == list(range(len(order))) else order
+        self.limiter.configure(limits, max_rate)
+
+    def restart(self, blend: bool) -> None:
+        """Forget the rate limit's last effort; ``blend``: blend from the held one (bumpless)."""
+        self.limiter.reset()
+        if blend:
+            self.blend.arm(self.tau_last)
+
+    def __call__(self, tau: np.ndarray, t: float) -> tuple[np.ndarray, bool]:
+        """Return the effort to command at ``t`` (command order) and whether a limit acted."""
+        tau, saturated = self.limiter(tau)
+        tau = self.tau_last = self.blend(tau, t)
+        return (tau if self.order is None else tau[self.order]), saturated
 
 
 class SafeHold:

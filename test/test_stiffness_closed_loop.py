@@ -183,10 +183,11 @@ def step_run(model, k, extra=None, duration=13.0) -> float:
     """
     Return the 2 % settling time of the true force after f_d 1 -> 2 N at t = 10 s.
 
-    f_d is set through an Event (a parameter set); masses 50 % low, 2 periods of delay.
+    f_d is set through an Event (a parameter set) as a step (``f_d_rate`` 0: the step response
+    is what is compared); masses 50 % low, 2 periods of delay.
     """
     theta0 = (model.theta_nominal * 0.5).tolist()
-    values = {'theta_hat0': theta0, **(extra or {})}
+    values = {'theta_hat0': theta0, 'f_d_rate': 0.0, **(extra or {})}
     set_f_d = Event(10.0, lambda rt, plant: rt.set_params(rt.validate({**values, 'f_d': 2.0})))
     res = run(model, k, 0.5, duration=duration, overrides=values, events=[set_f_d])
     f_n = res.f_true_W @ res.n_W

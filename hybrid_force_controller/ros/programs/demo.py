@@ -195,8 +195,8 @@ def _operator(args: argparse.Namespace, env: dict[str, str]) -> Any:
                                      args.out / 'script.log', F_D[args.arm])
 
 
-def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int, float, float]:
-    """Run the nodes and record; return 0 (or 2 on failure), mu and the tool mass."""
+def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, float, float]:
+    """Run the nodes and record; return None (0 when interrupted, 2 on failure), mu, mass."""
     from .wipe import WIPE_CONTROLLER_ARGS, WIPE_SIM_ARGS
     ros_args, mu, tool_mass = _scenario_args(args)
     wipe = args.task == 'wipe'
@@ -211,6 +211,7 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int, float, fl
         return 2, mu, tool_mass
     except KeyboardInterrupt:
         print(f'\ndemo: interrupted; the partial bag is {bag}', file=sys.stderr)
+        return 0, mu, tool_mass
     finally:
         for p in procs:
             p.send_signal(signal.SIGINT)
@@ -220,7 +221,7 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int, float, fl
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
-    return 0, mu, tool_mass
+    return None, mu, tool_mass
 
 
 def _t_start(args: argparse.Namespace, bag: Path) -> float:
@@ -250,7 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f'demo: {args.arm} arm on {args.physics} physics, {what}, '
           f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
     code, mu, tool_mass = _run(args, bag, mode)
-    if code:
+    if code is not None:  # interrupted (0: the partial bag is kept), or failed (2)
         return code
     from ...tools.report import main as report_main
     print('report:')

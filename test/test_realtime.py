@@ -1,9 +1,9 @@
 """
 Closed loop in real time over real DDS (no lockstep): sim and controller on the wall clock.
 
-(a) the sim's link masses are 50 % off the URDF's (0.65 and 1.35 kg vs 1.3 and 0.9 kg):
-contact is kept, the force stays bounded and the tool tracks the path within loose bounds;
-(b) the same with a recorder process subscribed to every topic; (c) the controller process
+(a) the sim's link masses are 50 % off the URDF's (0.65 and 1.35 kg vs 1.3 and 0.9 kg), with
+a recorder process subscribed to every topic: contact is kept, the force stays bounded and the
+tool tracks the path within loose bounds; (c) the controller process
 is frozen (SIGSTOP/SIGCONT by pid) for 30 ms a few times: the force comes back near f_d,
 no effort exceeds the limits and the process lives on. Plus the sim alone: it holds the arm
 still until the first command, and its physics keeps up with wall time when its own process
@@ -162,7 +162,9 @@ def _assert_contact_and_tracking(run: _Run, t0: float, t1: float) -> dict:
     return figures
 
 
-@pytest.mark.parametrize('recorder', [False, True], ids=['alone', 'with_recorder'])
+# with a recorder only: it is the loop alone plus a reader of every topic (the alone run took
+# 15 s more of the suite and checked a subset of it)
+@pytest.mark.parametrize('recorder', [True], ids=['with_recorder'])
 def test_real_time_loop_with_masses_50_percent_off(tmp_path, recorder):
     with _Run(tmp_path, recorder=recorder) as run:
         t0 = run.t_start + 4.0  # after the start blend (ref_blend_time 2 s) and settling

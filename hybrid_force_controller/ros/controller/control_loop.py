@@ -45,7 +45,7 @@ from .telemetry import EffortOutput
 from ..common.cdr import read_joint_state, read_wrench_stamped
 from ..common.loop_timing import DelayStats, RateMeter
 from ..common.runner import make_executor
-from ..common.scheduling import set_thread_scheduling
+from ..common.scheduling import name_this_thread, set_thread_scheduling
 from ...core.runtime.controller_runtime import ControllerRuntime, InputError
 from ...core.runtime.loop_stats import hold_phases, HoldStats, LoopStats
 
@@ -158,6 +158,7 @@ class ControlLoop:
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
         self.native_id = threading.get_native_id()
+        name_this_thread('hfc_control')  # per-thread CPU and profiles name it
         self.scheduling = set_thread_scheduling(self.settings.thread_priority,
                                                 self.settings.cpu_affinity)
         executor = make_executor(self.settings.executor, self.node.context)

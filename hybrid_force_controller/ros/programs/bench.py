@@ -28,7 +28,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .launch import find_config, PAPER_MASSES_OFF, PKG
-from .load import CpuMeter
+from .load import CpuMeter, ThreadCpuMeter
 from .run_faults import freeze, param_storm
 from .tracking import TrackingMeter
 from ...tools.offline_bench import offline_figures
@@ -193,9 +193,12 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
         _launch(cfg, env, log_dir, procs)
         _warm_up(diag, procs)
         meter = CpuMeter({n: p.pid for n, p in procs.items() if n != 'load'})
+        threads = {n: ThreadCpuMeter(procs[n].pid) for n in ('controller', 'sim', 'bare')}
         sim0 = diag.wait_new('sim', time.monotonic())
         t0 = time.monotonic()
         meter.start()
+        for m in threads.values():
+            m.start()
         t_stamp0 = diag.tracking.latest
         frozen = freeze(procs['controller'], cfg['freezes'], cfg['freeze_ms'] * 1e-3,
                         diag.tracking)
@@ -204,11 +207,13 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
             extra = param_storm(diag, cfg['param_storm'], 5.0)
         time.sleep(max(cfg['duration'] - (time.monotonic() - t0), 0.0))
         cpu = meter.stop()
+        per_thread = {n: m.stop() for n, m in threads.items()}
         t_end = diag.tracking.latest
         sim1 = diag.wait_new('sim', time.monotonic())
         t1 = time.monotonic()
         ctrl = diag.wait_new(PKG, t1)
         figures = _figures(cfg, diag, cpu, sim0, sim1, t1 - t0, ctrl)
+        figures['cpu_percent_per_thread'] = per_thread
         figures.update(_tracking(diag, t_stamp0, t_end, frozen, extra))
     finally:
         _stop(procs)

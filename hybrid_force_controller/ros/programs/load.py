@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Sequence
 
-__all__ = ['cpu_seconds', 'main', 'CpuMeter']
+__all__ = ['cpu_seconds', 'main', 'CpuMeter', 'thread_cpu_seconds', 'ThreadCpuMeter']
 
 _TICKS = os.sysconf('SC_CLK_TCK')
 
@@ -23,6 +23,42 @@ def cpu_seconds(pid: int) -> float:
     with open(f'/proc/{pid}/stat') as f:
         fields = f.read().rsplit(')', 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / _TICKS  # utime, stime (fields 14, 15)
+
+
+def thread_cpu_seconds(pid: int) -> dict[str, float]:
+    """
+    User + system CPU time of each thread of ``pid`` so far, s, by thread name.
+
+    The process's own thread is ``main``; threads sharing a name (the middleware's) are summed.
+    """
+    out: dict[str, float] = {}
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/stat') as f:
+                head, tail = f.read().rsplit(')', 1)
+        except OSError:  # the thread ended
+            continue
+        name = 'main' if int(tid) == pid else head.split('(', 1)[1]
+        fields = tail.split()
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / _TICKS
+    return out
+
+
+class ThreadCpuMeter:
+    """CPU use of each thread (by name) of one process over a window, % of one core."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self._t0, self._cpu0 = 0.0, {}
+
+    def start(self) -> None:
+        self._t0, self._cpu0 = time.monotonic(), thread_cpu_seconds(self.pid)
+
+    def stop(self) -> dict[str, float]:
+        """``{thread name: percent of one core}`` since :meth:`start`."""
+        wall, now = time.monotonic() - self._t0, thread_cpu_seconds(self.pid)
+        return {n: round(100.0 * (v - self._cpu0.get(n, 0.0)) / wall, 2)
+                for n, v in sorted(now.items())}
 
 
 class CpuMeter:

@@ -22,8 +22,9 @@ r is continuous. theta_hat and h integrate
 over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
 tick without a new state recomputes the command and integrates nothing, and a late state
 after a gap integrates a bounded step. Every new state also feeds the online stiffness
-estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py). Times
-are seconds on the caller's clock.
+estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py), and with
+``n_estimation`` the estimate of the surface normal (surface.py), whose n_hat then takes n's
+place (S, the approach, f_d n, the reference's plane). Times are seconds on the caller's clock.
 """
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ from .modes import Mode, TickOutput
 from .motion import Motion, reference_changed
 from .recovery import Recovery
 from .run_clock import RunClock
+from .surface import NormalStatus, SurfaceNormal
 from .tare import Tare
 from ..config.params import ControllerParams
 from ..law.bumpless import RestartBlend
@@ -75,6 +77,7 @@ class ControllerRuntime:
         self._motion = Motion(params, model.task_index)
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
+        self._normal = SurfaceNormal(params, model.task_axes)  # n, or n_hat (surface.py)
         self.validator = SetValidator(model)
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
         self._tau_last: np.ndarray | None = None  # the last effort out (model order)
@@ -129,6 +132,7 @@ class ControllerRuntime:
         self._cmd_order = None if order == list(range(len(order))) else order
         self._limiter.configure(rt.effort_limits, rt.max_effort_rate)
         self._motion.configure(params)
+        self._normal.configure(params, self.ctrl, self._motion)
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
         self.ctrl.set_force_setpoint(self._motion.force.value, self._motion.force.fdot)
@@ -220,7 +224,15 @@ class ControllerRuntime:
     def reference(self, t: float) -> Reference:
         """Return the reference at time ``t`` on the caller's clock (a path: at its clock)."""
         t0 = self._clock.t0
-        return self._motion(0.0 if t0 is None else t - t0)
+        return self._reference_at(0.0 if t0 is None else t - t0)
+
+    def _reference_at(self, tau: float) -> Reference:
+        """Return the reference at the run's time ``tau`` (n_hat's tangent plane: surface.py)."""
+        return self._normal.reference(self._motion, tau, self._in)
+
+    def normal_status(self) -> NormalStatus:
+        """Return the normal in use and the estimate's state, for /diagnostics."""
+        return self._normal.status()
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
@@ -240,14 +252,16 @@ class ControllerRuntime:
         dt_state, dt_int = self._state_step(stalled or self._restarted)
         if self._motion.force_ramping:
             self.ctrl.set_force_setpoint(*self._motion.force_step(dt_state))
-        f_n = float(self._params.law.n.dot(f_W))
+        f_n = float(self._normal.n_W.dot(f_W))
         touching = self._contact.update(f_n, self.ctrl.f_d, self._in.state.t)
+        if self._normal.enabled and dt_state > 0.0:  # the normal estimate (surface.py)
+            self._normal.update(f_W, self._in.kin(), dt_state, touching, self._motion)
         if touching and self._in.tare is not None:
             self._in.tare.abort('the tool touched the surface during the tare')
         self._transitions(touching, stalled, f_W, t)
         approach = self._approach_ref(dt_state)
         self._motion.advance_path(dt_state, self.mode == Mode.RUNNING and touching)
-        ref = self._motion(self.run_time)
+        ref = self._reference_at(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self.ctrl.f_d),
@@ -257,7 +271,8 @@ class ControllerRuntime:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
         if dt_state > 0.0:
-            self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
+            self._normal.feed_stiffness(self._stiffness, self.ctrl, f_n, out.kin.p_W, dt_state,
+                                        dt_int, touching)
         self._motion.r_n, self._motion.rdot_n = out.r_n, out.rdot_n
         self._observe(t, f_n, out.e, touching)
         tau, saturated = self._limiter(out.tau)
@@ -308,7 +323,7 @@ class ControllerRuntime:
             self._begin('contact_loss', t)
             self._enter_approach()
         elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
-            r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._params.law.n @ f_W))
+            r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._normal.n_W @ f_W))
             self._motion.start_handover(self._in.state.t, r_f, rdot_f)
             self.mode = Mode.RUNNING
 
@@ -420,4 +435,4 @@ class ControllerRuntime:
         return TickOutput(tau, mode, x_W, x_W if ref is None else ref.x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat, self._motion.path_progress(),
-                          None if ref is None else ref.xdot_d_W)
+                          None if ref is None else ref.xdot_d_W, self._normal.n_W)

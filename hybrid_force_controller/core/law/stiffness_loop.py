@@ -108,8 +108,8 @@ class StiffnessLoop:
         (base frame, m), ``touching`` the runtime's contact state. ``n`` (a unit 3-tuple), when
         given, replaces the configured normal in ``x_n = n^T p_W``: a moving normal
         (runtime/surface.py). ``learn`` False pauses the fit in contact (the tool slides: x_n
-        drifts with the normal's error); the first sample that learns again re-anchors it (the
-        regression restarts from k_hat, which is kept).
+        drifts with the normal's error); the first sample that learns again re-anchors it
+        (stiffness.py ``re_anchor``: a new origin of x_n, k's information kept).
         """
         est = self.estimator
         restarts = est.restarts
@@ -123,7 +123,7 @@ class StiffnessLoop:
             self._paused = True
         elif fit and self._paused:
             self._paused = False
-            est.forget_data()  # re-anchored: x_ref and b from the next sample on
+            est.re_anchor()  # x_ref and b from the next sample on, k's information kept
         (n_x, n_y, n_z), (p_x, p_y, p_z) = self._n if n is None else n, p_W.tolist()
         est.update(f_n, n_x * p_x + n_y * p_y + n_z * p_z, dt_state, fit)  # x_n = n^T p_W
         self._known = est.valid or (self._known and est.restarts == restarts)

@@ -43,7 +43,8 @@ _DOMAIN_OFFSETS = {
     'realtime_faults': 9, 'lifecycle': 10, 'namespaces': 11, 'robot_description': 12,
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
     'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'sim_watchdog': 21,
-    'path_ros': 23, 'task_interface': 24, 'contact_normal': 25, 'mujoco_ros': 30,
+    'path_ros': 23, 'task_interface': 24, 'contact_normal': 25, 'surface_normal_ros': 26,
+    'mujoco_ros': 30,
 }
 
 

@@ -112,8 +112,9 @@ class SurfaceNormal:
             self._n_given = self._n_est = self.n  # the n_W given out (_turn), n_hat seen
         self.enabled = True
         self._still_speed2 = (STILL_FRACTION * cfg.speed_floor) ** 2
-        kappa = 1.0 / float(self.n_W @ n_p)
-        self._kq = tuple(kappa * v for v in self._n_p)
+        n, q = self.n, self._n_p
+        kappa = 1.0 / (n[0] * q[0] + n[1] * q[1] + n[2] * q[2])
+        self._kq = tuple(kappa * v for v in q)
         self._moving = MovingNormal(self.n, _ZERO, self._n_p, kappa,
                                     None if self._full else self._ax)
         ctrl.set_normal(self._moving)

@@ -3,7 +3,8 @@
 
 Synthetic MCAP bags written with BagWriter (test_report.py's helpers), 10 s at 100 Hz: a plane
 tilted 0.3 rad about x (``/sim/contact_normal``), the controller told n = [0, 0, -1]. The tool
-rests until 2 s, then slides along x at 5 cm/s; its normal (``~/surface_normal``) turns from
+rests until 2 s (but for a 0.1 s jolt at 0.5 s, up to 3 cm/s: not sliding), then slides along x
+at 5 cm/s; its normal (``~/surface_normal``) turns from
 the told n to 1 deg off the truth by 4 s, and a 2.5 deg blip at 3.5 s (inside the settling
 window, which must not count). The true force along the true normal is 5 N +- 0.1 N (the force
 along the told n would be 4.8 N: the report must use the true normal).
@@ -55,6 +56,8 @@ def normal_messages():
         log_ns = ns + LOG_OFFSET_NS
         t = k * DT_NS * 1e-9
         x = start + 0.05 * max(t - T_SLIDE, 0.0) * along
+        if 0.5 <= t < 0.6:  # a jolt at start-up
+            x = x + 1e-3 * math.sin(math.pi * (t - 0.5) / 0.1) * along
         n_hat = n_hat_at(t)
         f_true = (5.0 + 0.1 * math.sin(2 * math.pi * t)) * N_TRUE
         yield TOPIC_X, log_ns, point_msg(ns, x + 1e-4 * along)

@@ -4,9 +4,10 @@ The learnt surface normal of a run against the truth (pure numpy; issue 24).
 :func:`normal_metrics` gives ``normal_error_deg``: the largest angle between the controller's
 normal (``~/surface_normal``, :attr:`RunLog.n_hat_W`) and the surface's true normal at the tool
 (``/sim/contact_normal``, :attr:`RunLog.n_true_W`), in contact, from :data:`SETTLE_S` after
-sliding begins. Sliding begins at the first sample in contact where the tool moves along the
-surface (across the true normal) faster than :data:`SLIDING_SPEED` (the estimate's default
-``n_speed_floor``: below it the estimate holds), the speed from the recorded positions over
+sliding begins. Sliding begins where the tool first moves along the surface (across the true
+normal), in contact, faster than :data:`SLIDING_SPEED` (the estimate's default
+``n_speed_floor``: below it the estimate holds) for :data:`SUSTAIN_S` on end (a contact's
+settling at start-up is shorter), the speed from the recorded positions over
 :data:`SPEED_WINDOW_S`. NaN (``null`` in metrics.json) when the run recorded no normal or
 never slid.
 """
@@ -26,6 +27,7 @@ NORMAL_METRIC_KEYS = ('normal_error_deg', 'sliding_begins_s')
 SLIDING_SPEED = 0.01  # m/s
 SPEED_WINDOW_S = 0.05
 SETTLE_S = 2.0
+SUSTAIN_S = 0.2
 
 
 def normal_error_deg(log: RunLog) -> np.ndarray:
@@ -47,8 +49,12 @@ def sliding_begins(log: RunLog) -> float:
     n = log.n_true_W[k:] if log.n_true_W is not None else log.n_W
     v_t = v - (np.sum(v * n, axis=1)[:, None] * n if n.ndim == 2 else np.outer(v @ n, n))
     moving = (np.linalg.norm(v_t, axis=1) >= SLIDING_SPEED) & log.in_contact[k:]
-    hits = np.flatnonzero(moving)
-    return float(t[k + hits[0]]) if hits.size else math.nan
+    edges = np.diff(np.concatenate(([0], moving.astype(np.int8), [0])))
+    t_k = t[k:]
+    for b, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        if t_k[e - 1] - t_k[b] >= SUSTAIN_S:
+            return float(t_k[b])
+    return math.nan
 
 
 def normal_metrics(log: RunLog) -> dict[str, Any]:

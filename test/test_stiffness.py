@@ -151,6 +151,28 @@ def test_forget_data_learns_a_new_surface_and_keeps_k_s():
     assert est.k_s == k_s  # only k_s_command moves k_s
 
 
+def test_re_anchor_forgets_the_origin_of_x_n_and_keeps_what_was_learnt_of_k():
+    """
+    A moving normal (surface.py): x_n jumped while the fit was paused; re_anchor moves its origin.
+
+    Without it the jump is a misfit, a change of the surface (S9): k_hat unknown again. With it
+    k_hat, its validity and most of its information stay, and the next loading goes on fitting k.
+    """
+    est, f, x = settled(1700.0)
+    std = est.k_hat_std
+    jumped = x + 0.02  # x_n's origin moved 2 cm (n_hat turned while the tool slid)
+    plain, _, _ = settled(1700.0)
+    feed(plain, np.full(50, f), np.full(50, jumped))
+    assert plain.changes == 1  # the check can fail: a jump unannounced is a new surface
+    est.re_anchor()
+    assert est.k_hat == pytest.approx(1700.0, rel=1e-4) and est.valid
+    assert est.k_hat_std < 10.0 * std  # kappa's information kept (marginal over b)
+    f_n, x_n = synthetic(1700.0)
+    feed(est, f_n, x_n - x_n[0] + jumped)
+    assert est.changes == 0 and est.restarts == 0
+    assert est.k_hat == pytest.approx(1700.0, rel=1e-4) and est.valid
+
+
 # ---------------------------------------------------------------- no drift, gating
 def converged(k: float = 1700.0, **kw) -> tuple[StiffnessEstimator, float, float]:
     est = make(**kw)

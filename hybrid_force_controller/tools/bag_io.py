@@ -8,11 +8,12 @@ version 8 is kept for older readers (Humble-era tools).
 
 Optional topics (a bag without them loads): ``/sim/contact_wrench`` (the true force),
 ``~/stiffness_estimate`` (``std_msgs/Float64``, the online stiffness estimate, NaN while
-unknown) and ``~/path_status`` (``std_msgs/String``: when a user's path was ``running``).
+unknown), ``~/path_status`` (``std_msgs/String``: when a user's path was ``running``),
+``~/surface_normal`` (the normal the controller used) and ``/sim/contact_normal`` (the
+surface's true normal at the tool; both ``geometry_msgs/Vector3Stamped``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 import threading
 from types import TracebackType
@@ -25,13 +26,15 @@ from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import get_typestore, Stores
 
-from .analysis import align, AnalysisError, RunLog
+from .analysis import AnalysisError, RunLog
+from .bag_series import (on_x_time, path_running, Series, sorted_by_stamp, stamp_ns, stiffness,
+                         true_masses, unit_vectors)
 from ..core.runtime.contact import CONTACT_FORCE_MIN_N, in_contact
 
 __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS',
            'LATCHED_TOPICS', 'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
-           'TOPIC_LINK_MASSES',
+           'TOPIC_LINK_MASSES', 'TOPIC_CONTACT_NORMAL', 'TOPIC_SURFACE_NORMAL',
            'TOPIC_PATH_STATUS', 'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH',
            'TOPIC_WRENCH_DESIRED', 'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
@@ -49,10 +52,13 @@ TOPIC_CONTACT_WRENCH = '/sim/contact_wrench'
 TOPIC_STIFFNESS_ESTIMATE = '/hybrid_force_controller/stiffness_estimate'
 TOPIC_PATH_STATUS = '/hybrid_force_controller/path_status'
 TOPIC_LINK_MASSES = '/sim/link_masses'  # the sim's true masses: transient local, once
+TOPIC_SURFACE_NORMAL = '/hybrid_force_controller/surface_normal'
+TOPIC_CONTACT_NORMAL = '/sim/contact_normal'
 
 _POINT = 'geometry_msgs/msg/PointStamped'
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
 _ARRAY = 'std_msgs/msg/Float64MultiArray'
+_VECTOR = 'geometry_msgs/msg/Vector3Stamped'
 
 RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_X, _POINT),
@@ -60,7 +66,7 @@ RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_WRENCH, _WRENCH),
     (TOPIC_WRENCH_DESIRED, _WRENCH),
     (TOPIC_THETA_HAT, _ARRAY),
-    (TOPIC_ERROR, 'geometry_msgs/msg/Vector3Stamped'),
+    (TOPIC_ERROR, _VECTOR),
     (TOPIC_JOINT_STATES, 'sensor_msgs/msg/JointState'),
     (TOPIC_FT_WRENCH, _WRENCH),
     (TOPIC_EFFORT_COMMANDS, _ARRAY),
@@ -69,6 +75,8 @@ RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_STIFFNESS_ESTIMATE, 'std_msgs/msg/Float64'),
     (TOPIC_PATH_STATUS, 'std_msgs/msg/String'),
     (TOPIC_LINK_MASSES, _ARRAY),
+    (TOPIC_SURFACE_NORMAL, _VECTOR),
+    (TOPIC_CONTACT_NORMAL, _VECTOR),
 ]
 # published once, transient local: a recorder that joins later still gets them
 LATCHED_TOPICS = (TOPIC_LINK_MASSES,)
@@ -189,24 +197,6 @@ class BagWriter:
         self.close()
 
 
-@dataclass
-class _Series:
-    """Samples of one topic: header stamps (or log times), log times and values."""
-
-    stamp_ns: list[int] = field(default_factory=list)
-    log_ns: list[int] = field(default_factory=list)
-    values: list[Any] = field(default_factory=list)
-    has_header: bool = True
-
-
-def _stamp_ns(msg: Any, log_ns: int) -> int:
-    """Header stamp of ``msg`` in ns, or the bag log time for headerless types."""
-    header = getattr(msg, 'header', None)
-    if header is None:
-        return log_ns
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
 def _value(topic: str, msg: Any) -> Any:
     """Extract the numbers :func:`load_run` needs from one message."""
     if topic in (TOPIC_X, TOPIC_X_DESIRED):
@@ -217,6 +207,8 @@ def _value(topic: str, msg: Any) -> Any:
         return 1.0 if msg.data == 'running' else 0.0
     if topic == TOPIC_LINK_MASSES:
         return np.array(msg.data, dtype=float)
+    if topic in (TOPIC_SURFACE_NORMAL, TOPIC_CONTACT_NORMAL):
+        return (msg.vector.x, msg.vector.y, msg.vector.z)
     if topic == TOPIC_THETA_HAT:
         label = msg.layout.dim[0].label if len(msg.layout.dim) else ''
         return np.array(msg.data, dtype=float), label
@@ -224,7 +216,7 @@ def _value(topic: str, msg: Any) -> Any:
     return (force.x, force.y, force.z)
 
 
-def _read_series(bag_path: Path) -> dict[str, _Series]:
+def _read_series(bag_path: Path) -> dict[str, Series]:
     """
     Deserialize the topics :func:`load_run` uses.
 
@@ -235,7 +227,7 @@ def _read_series(bag_path: Path) -> dict[str, _Series]:
 
     """
     wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE,
-              TOPIC_PATH_STATUS, TOPIC_LINK_MASSES)
+              TOPIC_PATH_STATUS, TOPIC_LINK_MASSES, TOPIC_SURFACE_NORMAL, TOPIC_CONTACT_NORMAL)
     try:
         with AnyReader([bag_path], default_typestore=TYPESTORE) as reader:
             if reader.message_count == 0 or not reader.connections:
@@ -243,13 +235,13 @@ def _read_series(bag_path: Path) -> dict[str, _Series]:
             for topic in REQUIRED_TOPICS:
                 if topic not in reader.topics:
                     raise BagError(f'required topic {topic} missing from bag {bag_path}')
-            series = {t: _Series() for t in wanted if t in reader.topics}
+            series = {t: Series() for t in wanted if t in reader.topics}
             conns = [c for c in reader.connections if c.topic in series]
             for conn, log_ns, raw in reader.messages(connections=conns):
                 msg = reader.deserialize(raw, conn.msgtype)
                 s = series[conn.topic]
                 s.has_header = hasattr(msg, 'header')
-                s.stamp_ns.append(_stamp_ns(msg, log_ns))
+                s.stamp_ns.append(stamp_ns(msg, log_ns))
                 s.log_ns.append(log_ns)
                 s.values.append(_value(conn.topic, msg))
     except BagError:
@@ -263,33 +255,7 @@ def _read_series(bag_path: Path) -> dict[str, _Series]:
     return series
 
 
-def _sorted_by_stamp(series: _Series) -> _Series:
-    """``series`` ordered by header stamp (stable; log order breaks ties)."""
-    order = np.argsort(np.asarray(series.stamp_ns, dtype=np.int64), kind='stable')
-    return _Series([series.stamp_ns[i] for i in order], [series.log_ns[i] for i in order],
-                   [series.values[i] for i in order], series.has_header)
-
-
-def _on_x_time(series: _Series, x: _Series) -> np.ndarray:
-    """
-    Zero-order hold ``series`` onto the samples of the position topic.
-
-    Stamped topics align header stamps; headerless ones (``Float64MultiArray``) align
-    bag log times against the position topic's log times, so a sim-time header clock and
-    a wall-clock recorder never get mixed.
-    """
-    t_src, t_query = ((series.stamp_ns, x.stamp_ns) if series.has_header
-                      else (series.log_ns, x.log_ns))
-    src_ns = np.asarray(t_src, dtype=np.int64)
-    query_ns = np.asarray(t_query, dtype=np.int64)
-    ref_ns = query_ns.min()  # float64 of epoch ns only resolves ~256 ns: subtract first
-    order = np.argsort(src_ns, kind='stable')
-    values = np.asarray(series.values, dtype=float)
-    return align((query_ns - ref_ns).astype(float), (src_ns[order] - ref_ns).astype(float),
-                 values[order])
-
-
-def _theta(series: _Series, x: _Series, bag_path: Path) -> tuple[np.ndarray, tuple[str, ...]]:
+def _theta(series: Series, x: Series, bag_path: Path) -> tuple[np.ndarray, tuple[str, ...]]:
     """``theta_hat`` on the position samples and its names from ``layout.dim[0].label``."""
     sizes = {data.size for data, _ in series.values}
     if len(sizes) != 1 or 0 in sizes:
@@ -299,41 +265,9 @@ def _theta(series: _Series, x: _Series, bag_path: Path) -> tuple[np.ndarray, tup
     names = tuple(s.strip() for s in series.values[0][1].split(','))
     if len(names) != p or not all(names):
         names = tuple(f'theta_{i}' for i in range(p))
-    stacked = _Series(series.stamp_ns, series.log_ns,
-                      [data for data, _ in series.values], series.has_header)
-    return _on_x_time(stacked, x), names
-
-
-def _stiffness(series: _Series | None, x: _Series) -> np.ndarray | None:
-    """
-    Return the stiffness estimate on the position samples (NaN before its first message).
-
-    None when the bag has no message on the topic.
-    """
-    if series is None or not series.values:
-        return None
-    k_hat = _on_x_time(series, x)
-    first_ns = min(series.stamp_ns if series.has_header else series.log_ns)
-    query_ns = np.asarray(x.stamp_ns if series.has_header else x.log_ns, dtype=np.int64)
-    k_hat[query_ns < first_ns] = np.nan
-    return k_hat
-
-
-def _path_running(series: _Series | None, x: _Series) -> np.ndarray | None:
-    """Return whether a path was ``running`` at each position sample (None: no status)."""
-    if series is None or not series.values:
-        return None
-    running = _on_x_time(series, x)
-    running[np.asarray(x.log_ns) < min(series.log_ns)] = 0.0  # before the first status
-    return running > 0.5
-
-
-def _true_masses(series: _Series | None, theta_hat: np.ndarray) -> np.ndarray | None:
-    """Return the sim's true link masses when they match theta_hat's size (else None)."""
-    if series is None or not series.values:
-        return None
-    masses = series.values[-1]
-    return masses if masses.shape == (theta_hat.shape[1],) else None
+    stacked = Series(series.stamp_ns, series.log_ns,
+                     [data for data, _ in series.values], series.has_header)
+    return on_x_time(stacked, x), names
 
 
 def _surface_normal(f_d_W: np.ndarray, bag_path: Path) -> np.ndarray:
@@ -362,7 +296,9 @@ def load_run(bag_path: str | Path,
         ``k_hat`` is the recorded stiffness estimate (None without the topic),
         ``path_running`` whether ``~/path_status`` said ``running`` (None without it),
         ``theta_true`` the sim's link masses (``/sim/link_masses``) when theta_hat has as
-        many entries (the ``link_masses`` parameter set).
+        many entries (the ``link_masses`` parameter set), ``n_hat_W`` the controller's
+        normal (``~/surface_normal``) and ``n_true_W`` the surface's (``/sim/contact_normal``)
+        when recorded; contact is then tested along the true normal (else the controller's).
 
     Returns
     -------
@@ -380,24 +316,29 @@ def load_run(bag_path: str | Path,
     if not path.exists():
         raise BagError(f'bag not found: {path}')
     series = _read_series(path)
-    x = _sorted_by_stamp(series[TOPIC_X])
-    f_d_W = _on_x_time(series[TOPIC_WRENCH_DESIRED], x)
+    x = sorted_by_stamp(series[TOPIC_X])
+    f_d_W = on_x_time(series[TOPIC_WRENCH_DESIRED], x)
     n_W = _surface_normal(f_d_W, path)
-    f_W = _on_x_time(series[TOPIC_WRENCH], x)
+    f_W = on_x_time(series[TOPIC_WRENCH], x)
     true = series.get(TOPIC_CONTACT_WRENCH)
-    f_true_W = _on_x_time(true, x) if true is not None and true.values else None
+    f_true_W = on_x_time(true, x) if true is not None and true.values else None
     theta_hat, names = _theta(series[TOPIC_THETA_HAT], x, path)
     stamps = np.asarray(x.stamp_ns, dtype=np.int64)
-    f_contact_n = (f_W if f_true_W is None else f_true_W) @ n_W
+    n_hat_W = unit_vectors(series.get(TOPIC_SURFACE_NORMAL), x)
+    n_true_W = unit_vectors(series.get(TOPIC_CONTACT_NORMAL), x)
+    n_contact = n_true_W if n_true_W is not None else n_hat_W
+    f_c = f_W if f_true_W is None else f_true_W
+    f_contact_n = f_c @ n_W if n_contact is None else np.sum(f_c * n_contact, axis=1)
     try:
         return RunLog(t=(stamps - stamps[0]) * 1e-9, x_W=np.asarray(x.values, dtype=float),
-                      x_d_W=_on_x_time(series[TOPIC_X_DESIRED], x), f_W=f_W, f_d_W=f_d_W,
+                      x_d_W=on_x_time(series[TOPIC_X_DESIRED], x), f_W=f_W, f_d_W=f_d_W,
                       n_W=n_W, theta_hat=theta_hat, theta_names=names,
                       in_contact=np.array([in_contact(f, minimum=contact_threshold_n)
                                            for f in f_contact_n], dtype=bool),
                       f_true_W=f_true_W,
-                      k_hat=_stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x),
-                      path_running=_path_running(series.get(TOPIC_PATH_STATUS), x),
-                      theta_true=_true_masses(series.get(TOPIC_LINK_MASSES), theta_hat))
+                      k_hat=stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x),
+                      path_running=path_running(series.get(TOPIC_PATH_STATUS), x),
+                      theta_true=true_masses(series.get(TOPIC_LINK_MASSES), theta_hat),
+                      n_hat_W=n_hat_W, n_true_W=n_true_W)
     except AnalysisError as exc:
         raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

@@ -9,6 +9,12 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
   Panda's tick while it follows a 4 cm square (``~/path``) and, in the same window of the
   same run without the path, while it holds its point (the reference's cost: the spline's
   evaluation against a held point);
+- ``normal_tick_7dof_us_median_off`` / ``_on`` and ``normal_tick_ratio``: the Panda's tick
+  without and with the surface-normal estimate (``n_estimation``), told n = [0, 0, -1] on
+  its plane tilted 0.3 rad while it follows a 4 cm square: one recorded input stream replayed
+  into two runtimes, tick by tick in alternation (the machine's load falls on both alike),
+  three times: the medians' medians and the median ratio of the medians (issue 24: at most
+  1.1);
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline;
 - with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
   tick dearer): its controller step timed in a subprocess, alternating three times with
@@ -18,6 +24,7 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 import subprocess
 import sys
@@ -25,8 +32,10 @@ import time
 
 import numpy as np
 
+from ..core.config.params import build_params
 from ..core.offline.arm7 import panda_model, panda_scenario, square_path_event
 from ..core.offline.scenario import run_scenario, ScenarioConfig
+from ..core.runtime.controller_runtime import ControllerRuntime
 
 
 def _tick_us(cfg: ScenarioConfig, model=None) -> np.ndarray:
@@ -75,6 +84,56 @@ def path_tick_figures(model=None) -> dict[str, float]:
     return out
 
 
+def _recorded_stream(model, cfg: ScenarioConfig) -> tuple[list, dict]:
+    """Run ``cfg`` and return the (stamp s, q, qdot, F_S) the controller received, and the path."""
+    stream: list = []
+    sent: dict = {}
+    cfg = ScenarioConfig(**{**vars(cfg), 'events': [square_path_event(0.5, 0.04, sent)],
+                            'input_hook': lambda t, msg: stream.append((t, *msg)) or msg})
+    run_scenario(cfg, model)
+    return stream, sent
+
+
+def normal_tick_figures(model=None, duration: float = 4.0, rounds: int = 3) -> dict[str, float]:
+    """Return the Panda's tick without and with the normal estimate, paired (us, ratio)."""
+    model = panda_model() if model is None else model
+    tilt = (0.0, math.sin(0.3), -math.cos(0.3))
+    cfg = panda_scenario(model, duration, surface_normal=tilt, overrides={
+        'n': [0.0, 0.0, -1.0], 'n_estimation': True, 'ref_amplitude': [0.0, 0.0, 0.0]})
+    stream, sent = _recorded_stream(model, cfg)
+    theta0 = (model.theta_nominal * np.asarray(cfg.theta_hat0_scale)).tolist()
+    k_path = next(k for k, msg in enumerate(stream) if msg[0] >= sent['t'])
+    medians = []
+    for _ in range(rounds):
+        runtimes = [ControllerRuntime(model, build_params(
+            model, {**cfg.overrides, 'theta_hat0': theta0, 'n_estimation': est}))
+            for est in (False, True)]
+        ticks = _paired_ticks(model, runtimes, stream, k_path, sent['plan'])
+        medians.append([float(np.median(np.array(v[len(v) // 4:]))) / 1e3 for v in ticks])
+    off, on = np.median(np.array(medians), axis=0)
+    return {'normal_tick_7dof_us_median_off': round(float(off), 2),
+            'normal_tick_7dof_us_median_on': round(float(on), 2),
+            'normal_tick_ratio': round(float(np.median([b / a for a, b in medians])), 3)}
+
+
+def _paired_ticks(model, runtimes: list, stream: list, k_path: int, plan) -> list[list[int]]:
+    """Replay ``stream`` into both runtimes, tick by tick in alternation; each tick's ns."""
+    names, frame = list(model.joint_names), model.end_effector_link
+    ticks: list[list[int]] = [[], []]
+    clock = time.perf_counter_ns
+    for k, (t, q, qdot, F_S) in enumerate(stream):
+        for i in ((0, 1) if k % 2 else (1, 0)):
+            rt = runtimes[i]
+            if k == k_path:
+                rt.on_path(plan, 1)
+            rt.on_joint_state(names, q, qdot, t)
+            rt.on_wrench(frame, F_S, t)
+            t0 = clock()
+            rt.tick(t)
+            ticks[i].append(clock() - t0)
+    return ticks
+
+
 def offline_figures(old_tree: str | None = None) -> dict[str, float]:
     """Measure the controller step percentiles and the paper scenario's real-time factor."""
     ratio = {} if old_tree is None else tick_ratio(old_tree)
@@ -88,6 +147,6 @@ def offline_figures(old_tree: str | None = None) -> dict[str, float]:
             'controller_step_us_p99': round(float(np.percentile(step_us, 99)), 2),
             'controller_step_7dof_us_median': round(float(np.median(panda_us)), 2),
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
-            **path_tick_figures(panda),
+            **path_tick_figures(panda), **normal_tick_figures(panda),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

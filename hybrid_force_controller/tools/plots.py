@@ -3,7 +3,9 @@ Figures 3-5 of the paper, the online stiffness estimate when the run recorded it
 
 The figures are drawn from a :class:`~hybrid_force_controller.tools.analysis.RunLog`; the
 stiffness estimate goes to ``fig6_stiffness.png``; :func:`write_path_figure` draws the path
-in the surface plane, desired against actual (``fig7_path.png``, the report's).
+in the surface plane, desired against actual (``fig7_path.png``, the report's);
+:func:`write_normal_figure` the controller's surface normal against the true one
+(``fig8_normal.png``, when the run recorded both).
 
 Uses matplotlib's object API on the Agg canvas (no pyplot state, no display needed).
 """
@@ -16,14 +18,16 @@ from matplotlib.figure import Figure
 import numpy as np
 
 from .analysis import RunLog, surface_axis, tangential_error
+from .normal_analysis import normal_error_deg, SETTLE_S, sliding_begins
 from .path_analysis import path_window, surface_basis
 
-__all__ = ['FIGURE_NAMES', 'PATH_FIGURE', 'STIFFNESS_FIGURE', 'write_figures',
-           'write_path_figure']
+__all__ = ['FIGURE_NAMES', 'NORMAL_FIGURE', 'PATH_FIGURE', 'STIFFNESS_FIGURE', 'write_figures',
+           'write_normal_figure', 'write_path_figure']
 
 FIGURE_NAMES = ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png')
 STIFFNESS_FIGURE = 'fig6_stiffness.png'
 PATH_FIGURE = 'fig7_path.png'
+NORMAL_FIGURE = 'fig8_normal.png'
 
 _FIGSIZE = (7.0, 4.0)
 _DPI = 90
@@ -182,6 +186,40 @@ def write_path_figure(log: RunLog, out_dir: str | Path, t_start: float = 5.0) ->
     ax.grid(True, alpha=0.3)
     ax.legend(loc='best')
     path = Path(out_dir) / PATH_FIGURE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return path
+
+
+def write_normal_figure(log: RunLog, out_dir: str | Path) -> Path | None:
+    """
+    Draw the controller's normal against the true one to ``fig8_normal.png``.
+
+    Its components (solid) and the truth's (dashed), and the angle between them, with
+    sliding's beginning and the start of ``normal_error_deg``'s window (normal_analysis.py).
+    None (nothing written) when the run did not record both normals.
+    """
+    if log.n_hat_W is None or log.n_true_W is None:
+        return None
+    fig, (ax_n, ax_e) = _new_figure(2)
+    for i, name in enumerate(_AXIS_NAMES):
+        (line,) = ax_n.plot(log.t, log.n_hat_W[:, i], label=f'n_hat {name}')
+        ax_n.plot(log.t, log.n_true_W[:, i], '--', color=line.get_color(), label=f'true {name}')
+    ax_n.set_ylabel('normal (base frame)')
+    ax_n.set_title('The surface normal: estimate against the truth')
+    ax_n.legend(loc='best', ncol=3, fontsize='small')
+    ax_e.plot(log.t, normal_error_deg(log), color='tab:red')
+    t_slide = sliding_begins(log)
+    if np.isfinite(t_slide):
+        ax_e.axvline(t_slide, color='black', ls=':', label='sliding begins')
+        ax_e.axvline(t_slide + SETTLE_S, color='black', ls='--', label=f'+{SETTLE_S:g} s')
+        ax_e.legend(loc='best')
+    ax_e.set_ylabel('angle [deg]')
+    ax_e.set_ylim(bottom=0.0)
+    ax_e.set_xlabel('t [s]')
+    for ax in (ax_n, ax_e):
+        ax.grid(True, alpha=0.3)
+    path = Path(out_dir) / NORMAL_FIGURE
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     return path

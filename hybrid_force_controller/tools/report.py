@@ -8,7 +8,11 @@ bag has no ``~/stiffness_estimate`` or it was unknown at the end; ``rms_path_err
 user's path was running, or over ``t >= T_START`` when none did: ``path_window`` says which)
 and three PNGs to ``DIR``, plus ``fig6_stiffness.png`` when the estimate was recorded
 (``--k-true``: the surface's true stiffness, drawn for comparison) and ``fig7_path.png``, the
-path in the surface plane, desired against actual. Exit code 0 on success, 2 on an
+path in the surface plane, desired against actual. With ``~/surface_normal`` and
+``/sim/contact_normal`` recorded, ``normal_error_deg`` (the largest angle between the
+controller's normal and the true one from 2 s after sliding begins; ``sliding_begins_s``) and
+``fig8_normal.png`` (normal_analysis.py), and the force error is the true force along the
+true normal. Exit code 0 on success, 2 on an
 unreadable bag or invalid run.
 """
 from __future__ import annotations
@@ -22,8 +26,9 @@ from typing import Sequence
 
 from .analysis import AnalysisError, compute_metrics, json_safe
 from .bag_io import BagError, load_run
+from .normal_analysis import normal_metrics
 from .path_analysis import path_metrics
-from .plots import write_figures, write_path_figure
+from .plots import write_figures, write_normal_figure, write_path_figure
 
 __all__ = ['main']
 
@@ -68,6 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             log = dataclasses.replace(log, k_true=args.k_true)
         metrics = compute_metrics(log, t_start=args.t_start, wall_time_s=args.wall_time)
         metrics.update(path_metrics(log, t_start=args.t_start))
+        metrics.update(normal_metrics(log))
     except (BagError, AnalysisError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
@@ -75,6 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         figures = write_figures(log, args.out)
         figures.append(write_path_figure(log, args.out, args.t_start))
+        figures.extend(p for p in [write_normal_figure(log, args.out)] if p is not None)
         metrics_path.write_text(json.dumps(json_safe(metrics), indent=2) + '\n')
     except OSError as exc:
         print(f'error: cannot write to {args.out}: {exc}', file=sys.stderr)

@@ -50,6 +50,11 @@ tangential part of e only: the normal error then measures
 how far the lag-limited approach reference leads the tool, not a model error, and
 adapting on it swung theta_hat past the truth (6 N impacts with the masses 50 % high).
 
+Moving normal. With the normal estimated (runtime/surface.py), ``set_normal`` makes the law use
+n_hat (and its rate) in place of the gains' n: r and rdot then come from moving_normal.py (M2),
+the derivative of r with S moving fed forward (docs/design.md, "A moving normal"); without it,
+nothing here changes.
+
 Time is an argument: ``dt`` is the time the newest state integrates theta_hat and h over
 (0 when no new state arrived since the last tick: the command is recomputed, nothing
 integrates). Effort limits are the runtime's (:class:`~.effort.EffortLimiter`).
@@ -62,48 +67,15 @@ from typing import NamedTuple
 import numpy as np
 
 from .adaptation import adapt_theta, adaptation_weight
+from .law_io import ApproachRef, ControlError, ControlOutput
+from .moving_normal import MovingNormal
 from .reference import Reference
 from ..config.params import LawGains
 from ..model.linalg import small_inverse
 from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
-           'adapt_theta']
-
-
-class ControlError(ValueError):
-    """The control law met non-finite or inconsistent input it cannot act on."""
-
-
-class ApproachRef(NamedTuple):
-    """
-    Normal reference of an approach.
-
-    Position ``x_n = n^T x_ref`` (m), velocity and acceleration along n, base frame.
-    """
-
-    x_n: float
-    v_n: float
-    a_n: float
-
-
-class ControlOutput(NamedTuple):
-    """
-    One tick's result.
-
-    It holds the effort (finite, before the runtime's limits), e (task coordinates,
-    ``model.task_axes``), the kinematics it used, theta_hat after the update, the force integral
-    h, and the normal part of r (m/s) with the mode-specific term of rdot's normal part (m/s^2;
-    the rest of rdot is common to both modes).
-    """
-
-    tau: np.ndarray
-    e: np.ndarray
-    kin: TaskKinematics
-    theta_hat: np.ndarray
-    h: float
-    r_n: float
-    rdot_n: float
+           'adapt_theta', 'small_inverse']
 
 
 class _Derived(NamedTuple):
@@ -139,6 +111,7 @@ class HybridForceController:
         self._eye_n = np.eye(model.n)
         self._d: _Derived | None = None
         self._k = _Compliance()
+        self._moving: MovingNormal | None = None  # a moving normal (set_normal), else d.n
         self.h = 0.0
         self.set_gains(gains)
         self.reset()
@@ -177,6 +150,22 @@ class HybridForceController:
         self._z_parts = tuple(z[i:j] for i, j in ((0, m), (m, 2 * m), (2 * m, 2 * m + 3),
                                                   (2 * m + 3, 2 * m + 6), (2 * m + 6, 2 * m + 9)))
         self._set_compliance(self._k.override, 0.0, rescale_h=False)
+
+    @property
+    def n(self) -> np.ndarray:
+        """Return the normal in use, task coordinates: the gains' n, or the moving n_hat."""
+        mn = self._moving
+        return self._d.n if mn is None else np.array(
+            mn.n if mn.axes is None else [mn.n[i] for i in mn.axes])
+
+    def set_normal(self, moving: MovingNormal | None) -> None:
+        """
+        Use a moving normal n_hat (moving_normal.py, (M2)) from the next step on; None: the gains'.
+
+        The reference passed to :meth:`step` must then be the projected one (M1): it has no
+        part along n_hat. The force integral h goes on (it integrates along the current normal).
+        """
+        self._moving = moving
 
     def set_k_s(self, k_s: float | None, log_rate: float = 0.0) -> None:
         """
@@ -237,16 +226,20 @@ class HybridForceController:
         ``approach`` the normal part tracks that reference instead of the force loop; otherwise
         ``r_bias`` (m/s, m/s^2) is added to them (the runtime's hand-over from an approach).
         """
-        d = self._d
-        g, n = d.gains, d.n
-        f_n = float(n.dot(f))
+        d, mn = self._d, self._moving
+        g, n = d.gains, (d.n if mn is None else mn.n)
+        f_n = float(n.dot(f)) if mn is None else mn.dot(f)
         if approach is None:
             r_n, rdot_n = self.force_loop_r_n(f_n)
             r_n, rdot_n = r_n + r_bias[0], rdot_n + r_bias[1]
         else:
-            l1 = g.lambda1
-            r_n = approach.v_n - l1 * (float(n.dot(kin.x)) - approach.x_n)
-            rdot_n = approach.a_n + l1 * approach.v_n
+            r_n, rdot_n = self._approach_r_n(approach, float(n.dot(kin.x)) if mn is None
+                                             else mn.dot(kin.x))
+        if mn is not None:  # (M2) of moving_normal.py
+            dr_n = -g.lambda1 * (mn.dot(kin.x, rate=True) if approach is not None
+                                 else self._k.c * mn.dot(f, rate=True))
+            r, rdot = mn.r_rdot(kin.x, kin.xdot, ref, g.lambda1, r_n, rdot_n, dr_n)
+            return r, rdot, f_n - self.f_d, r_n, rdot_n
         x, xdot, x_d, xdot_d, xddot_d = self._z_parts  # z of _linear_part, in place
         x[...], xdot[...] = kin.x, kin.xdot
         x_d[...], xdot_d[...], xddot_d[...] = ref
@@ -255,6 +248,11 @@ class HybridForceController:
         r_rdot = d.G.dot(z)
         m = len(n)
         return r_rdot[:m], r_rdot[m:], f_n - self.f_d, r_n, rdot_n
+
+    def _approach_r_n(self, approach: ApproachRef, x_n: float) -> tuple[float, float]:
+        """Return the normal part of r and rdot's mode term in an approach (at ``x_n = n^T x``)."""
+        l1 = self._d.gains.lambda1
+        return approach.v_n - l1 * (x_n - approach.x_n), approach.a_n + l1 * approach.v_n
 
     def force_loop_r_n(self, f_n: float) -> tuple[float, float]:
         """
@@ -340,7 +338,8 @@ class HybridForceController:
             raise ControlError('control law produced a non-finite effort')
         if dt > 0.0:
             if approach is not None:  # adapt on the motion along the surface only
-                s = J_pinv @ (e - d.n * float(d.n @ e))
+                n = self.n
+                s = J_pinv @ (e - n * float(n @ e))
             self._integrate(Y_q, s * adaptation_weight(e, g.adapt_error_limit, g.adapt_dead_zone)
                             if adapt else None, df_n, dt,
                             in_contact and approach is None)

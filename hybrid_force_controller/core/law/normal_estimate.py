@@ -77,6 +77,7 @@ class NormalEstimator:
         if not isinstance(config, NormalConfig):
             raise NormalConfigError(f'expected a NormalConfig, got {type(config).__name__}')
         self.config = config
+        self._floors = (config.force_floor ** 2, config.speed_floor ** 2)  # squared, per sample
         self._dt_cache = (-1.0, 0.0, 0.0, 0.0)  # dt, a_n (N6), a_mu (N2), omega_max dt
         self.reset(n0)
 
@@ -93,6 +94,7 @@ class NormalEstimator:
         if not isinstance(config, NormalConfig):
             raise NormalConfigError(f'expected a NormalConfig, got {type(config).__name__}')
         self.config, self._dt_cache = config, (-1.0, 0.0, 0.0, 0.0)
+        self._floors = (config.force_floor ** 2, config.speed_floor ** 2)
 
     @property
     def n_hat(self) -> tuple[float, float, float]:
@@ -100,7 +102,9 @@ class NormalEstimator:
         return self._n
 
     def _factors(self, dt: float) -> tuple[float, float, float, float]:
-        if dt != self._dt_cache[0]:
+        """Return the factors of ``dt`` (cached: stamps' differences differ in the last bits)."""
+        cached = self._dt_cache[0]
+        if not abs(dt - cached) <= 1e-9 * cached:
             if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
                 raise NormalEstimateError(f'dt must be finite and > 0, got {dt!r}')
             c = self.config
@@ -137,12 +141,12 @@ class NormalEstimator:
             return self._hold('rejected')
         if not in_contact:
             return self._hold('no_contact')
-        if f0 * f0 + f1 * f1 + f2 * f2 < self.config.force_floor ** 2:
+        if f0 * f0 + f1 * f1 + f2 * f2 < self._floors[0]:
             return self._hold('low_force')
         n0, n1, n2 = self._n
         v_n = v0 * n0 + v1 * n1 + v2 * n2
         t0, t1, t2 = v0 - v_n * n0, v1 - v_n * n1, v2 - v_n * n2
-        if t0 * t0 + t1 * t1 + t2 * t2 < self.config.speed_floor ** 2:
+        if t0 * t0 + t1 * t1 + t2 * t2 < self._floors[1]:
             return self._hold('at_rest')
         speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         u0, u1, u2 = v0 / speed, v1 / speed, v2 / speed

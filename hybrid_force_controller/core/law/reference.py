@@ -115,10 +115,15 @@ class BlendedReference:
         return Reference(rows[0], rows[1], rows[2])
 
     def __call__(self, tau: float) -> Reference:
+        rows = self.rows(tau)
+        return Reference(rows[0], rows[1], rows[2])
+
+    def rows(self, tau: float) -> np.ndarray:
+        """Return the reference at ``tau``: the rows x_d, xdot_d, xddot_d of a new (3, 3) array."""
         rows, t = self._base_rows(tau), tau - self.tau_b
         if not (self._tb <= 0.0 or t >= self._tb):  # blending (blend_start)
             rows += _hermite(t, self._tb).dot(self._offsets)
-        return Reference(rows[0], rows[1], rows[2])
+        return rows
 
     def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray,
                    blend_s: float | None = None) -> None:

@@ -122,6 +122,21 @@ class StiffnessEstimator:
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
         self._valid = False  # (S6), evaluated once per change of the fit
 
+    def re_anchor(self) -> None:
+        """
+        Forget where x_n's origin is, keep what the data said of k: a new local origin (S2).
+
+        For an x_n that jumped or drifted while the fit was paused (a moving normal,
+        runtime/surface.py): the next in-contact sample sets ``x_ref`` and b as a first contact
+        does, and the filter (S0) starts again from it; the information of kappa is kept as its
+        marginal over b (the Schur complement ``r_uu - r_ub^2 / r_bb`` of R), b's is the
+        prior's. k_hat, its validity and the k_s command are kept.
+        """
+        rho = self.config.regularisation
+        self._r_uu = max(self._r_uu - self._r_ub * self._r_ub / self._r_bb, rho)
+        self._r_ub, self._r_bb = 0.0, rho
+        self._x_ref, self._x_f, self._cusum = None, None, 0.0  # (S0) restarts at the new x_n
+
     def restart(self) -> None:
         """
         Treat the surface as unknown again (contact lost, or a change (S9)).

@@ -56,6 +56,7 @@ class StiffnessLoop:
         self._n = tuple(self._n_W.tolist())  # n as floats: n^T p on floats
         self._known = False  # the estimate has been valid since the last reset
         self._touching = False
+        self._paused = False  # the fit was paused in contact (update's learn)
         self.contacts = 0
 
     @property
@@ -95,7 +96,8 @@ class StiffnessLoop:
             ctrl.set_k_s(est.k_s)
 
     def update(self, ctrl: HybridForceController, f_n: float, p_W: np.ndarray,
-               dt_state: float, dt_int: float, touching: bool) -> None:
+               dt_state: float, dt_int: float, touching: bool,
+               n: tuple[float, float, float] | None = None, learn: bool = True) -> None:
         """
         Process one new state: (S0)-(S6) on ``(f_n, n^T p_W)`` over ``dt_state`` (s, > 0).
 
@@ -103,7 +105,11 @@ class StiffnessLoop:
         integrates, bounded after a gap) into the law.
 
         ``f_n`` is the filtered normal force (N), ``p_W`` the tool position of the state
-        (base frame, m), ``touching`` the runtime's contact state.
+        (base frame, m), ``touching`` the runtime's contact state. ``n`` (a unit 3-tuple), when
+        given, replaces the configured normal in ``x_n = n^T p_W``: a moving normal
+        (runtime/surface.py). ``learn`` False pauses the fit in contact (the tool slides: x_n
+        drifts with the normal's error); the first sample that learns again re-anchors it
+        (stiffness.py ``re_anchor``: a new origin of x_n, k's information kept).
         """
         est = self.estimator
         restarts = est.restarts
@@ -112,8 +118,14 @@ class StiffnessLoop:
         elif self._touching and not touching:
             est.restart()  # contact lost: the next surface is unknown
         self._touching = touching
-        (n_x, n_y, n_z), (p_x, p_y, p_z) = self._n, p_W.tolist()
-        est.update(f_n, n_x * p_x + n_y * p_y + n_z * p_z, dt_state, touching)  # x_n = n^T p_W
+        fit = touching and learn
+        if touching and not learn:
+            self._paused = True
+        elif fit and self._paused:
+            self._paused = False
+            est.re_anchor()  # x_ref and b from the next sample on, k's information kept
+        (n_x, n_y, n_z), (p_x, p_y, p_z) = self._n if n is None else n, p_W.tolist()
+        est.update(f_n, n_x * p_x + n_y * p_y + n_z * p_z, dt_state, fit)  # x_n = n^T p_W
         self._known = est.valid or (self._known and est.restarts == restarts)
         if est.config.enabled:
             ctrl.set_k_s(est.k_s_command(dt_int), est.k_s_log_rate)

@@ -56,8 +56,9 @@ class LoopLog:
     """
     Log of a run, one entry per plant step.
 
-    Time, state, forces (3-D, base frame), reference, effort, theta_hat and the stiffness
-    estimate ``k_hat`` (N/m, NaN while unknown).
+    Time, state, forces (3-D, base frame), reference, effort, theta_hat, the stiffness
+    estimate ``k_hat`` (N/m, NaN while unknown) and the normal the controller used ``n_hat_W``
+    (its ``n``, or the estimate with ``n_estimation``; zero before the first tick).
     """
 
     t: np.ndarray
@@ -74,6 +75,7 @@ class LoopLog:
     delays_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     tick_ns: np.ndarray = field(default_factory=lambda: np.zeros(0))
     k_hat: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_hat_W: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 @dataclass
@@ -233,6 +235,7 @@ class _Recorder:
         self.x, self.x_d, self.f, self.f_true, self.f_d = (np.zeros((steps, 3)) for _ in range(5))
         self.theta = np.zeros((steps, p))
         self.k_hat = np.full(steps, np.nan)
+        self.n_hat = np.zeros((steps, 3))
         self.tau: list[np.ndarray] = []
         self.mode: list[str] = []
         self.commands = self.ticks = 0
@@ -251,10 +254,12 @@ class _Recorder:
         self.f_d[k] = runtime.f_d_W
         self.theta[k] = runtime.theta_hat
         self.k_hat[k] = math.nan if out is None else out.k_hat
+        if out is not None and out.n_W is not None:
+            self.n_hat[k] = out.n_W
         self.tau.append(np.zeros_like(meas.q) if tau is None else tau)
         self.mode.append('none' if out is None else Mode(out.mode).value)
 
     def result(self, delays: list[float]) -> LoopLog:
         return LoopLog(self.t, self.x, self.x_d, self.f, self.f_true, self.f_d, self.theta,
                        np.array(self.tau), self.mode, self.commands, self.ticks,
-                       np.array(delays), np.array(self.tick_ns), self.k_hat)
+                       np.array(delays), np.array(self.tick_ns), self.k_hat, self.n_hat)

@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .engine import COMMAND_TIMEOUT_S, Event, LoopLog, run_loop
-from .environment import ElasticSurface
+from .environment import ElasticSurface, make_surface
 from .simulator import ArmSimulator
 from .timing import TimingModel
 from ..config.params import build_params
@@ -38,7 +38,10 @@ class ScenarioConfig:
     are controller parameter values; ``timing`` (default: lockstep with ``delay_steps``),
     ``events`` (parameter sets, surface moves at given times) and ``input_hook`` (faults
     on the messages the controller receives) and the plant's ``command_timeout`` (its
-    watchdog, s) go to the engine.
+    watchdog, s) go to the engine. ``surface_normal`` (None: the controller's ``n``),
+    ``surface_shape``, ``surface_radius`` and ``surface_axis`` describe the workpiece as the
+    sim's parameters do (environment.py ``make_surface``): touched at the tool's start, its
+    normal there ``surface_normal``; the controller is told only ``n``.
     """
 
     k: float = 1700.0
@@ -54,6 +57,10 @@ class ScenarioConfig:
     events: Sequence[Event] = ()
     input_hook: Callable[[float, Any], Any] | None = None
     command_timeout: float = COMMAND_TIMEOUT_S
+    surface_normal: tuple[float, ...] | None = None
+    surface_shape: str = 'plane'
+    surface_radius: float = 0.5
+    surface_axis: tuple[float, ...] | None = None
 
 
 @dataclass(kw_only=True)
@@ -62,8 +69,9 @@ class ScenarioResult(LoopLog):
     The engine's log of one run plus what the analysis needs.
 
     Contact (the one predicate on the true force), the normal, the true parameters, the simulated
-    surface's k (``k_true``; the log's ``k_hat`` is the controller's estimate, NaN while unknown)
-    and the runtime.
+    surface's k (``k_true``; the log's ``k_hat`` is the controller's estimate, NaN while unknown),
+    the runtime and the surface's true normal nearest the tool at every sample (``n_true_W``;
+    the log's ``n_hat_W`` is the controller's).
     """
 
     in_contact: np.ndarray
@@ -72,6 +80,7 @@ class ScenarioResult(LoopLog):
     theta_names: tuple[str, ...]
     runtime: ControllerRuntime
     k_true: float
+    n_true_W: np.ndarray | None = None
 
     @property
     def log(self) -> LoopLog:
@@ -91,13 +100,20 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
     runtime = ControllerRuntime(model, params)
     q0 = np.array(cfg.q0, dtype=float)
     p0 = model.kinematics(q0, np.zeros(model.n)).p_W
-    plant = ArmSimulator(model, ElasticSurface.create(cfg.k, p0, params.law.n), q0,
-                         substeps=cfg.substeps, noise_sigma=cfg.noise_sigma, seed=cfg.seed)
+    told = cfg.surface_normal is None and cfg.surface_shape == 'plane'
+    surface = (ElasticSurface.create(cfg.k, p0, params.law.n) if told else
+               make_surface(cfg.surface_shape, cfg.k, p0, cfg.surface_normal or params.law.n,
+                            cfg.surface_radius, cfg.surface_axis))
+    plant = ArmSimulator(model, surface, q0, substeps=cfg.substeps,
+                         noise_sigma=cfg.noise_sigma, seed=cfg.seed)
     timing = TimingModel.lockstep(cfg.delay_steps) if cfg.timing is None else cfg.timing
     log = run_loop(runtime, plant, cfg.duration, timing, cfg.events, clock_ns=clock_ns,
                    input_hook=cfg.input_hook, command_timeout=cfg.command_timeout)
     n_W = params.law.n
-    contact = np.array([in_contact(float(n_W @ f)) for f in log.f_true_W])
+    n_true = (np.tile(n_W, (len(log.t), 1)) if told else
+              np.array([surface.normal_at(x) for x in log.x_W]))
+    contact = np.array([in_contact(float(n @ f)) for n, f in zip(n_true, log.f_true_W)])
     return ScenarioResult(**vars(log), in_contact=contact, n_W=n_W.copy(),
                           theta_true=model.theta_nominal.copy(),
-                          theta_names=model.theta_names, runtime=runtime, k_true=float(cfg.k))
+                          theta_names=model.theta_names, runtime=runtime, k_true=float(cfg.k),
+                          n_true_W=n_true)

@@ -23,8 +23,9 @@ r is continuous. theta_hat and h integrate
 over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
 tick without a new state recomputes the command and integrates nothing, and a late state
 after a gap integrates a bounded step. Every new state also feeds the online stiffness
-estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py). Times
-are seconds on the caller's clock.
+estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py), and with
+``n_estimation`` the estimate of the surface normal (surface.py), whose n_hat then takes n's
+place (S, the approach, f_d n, the reference's plane). Times are seconds on the caller's clock.
 """
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ from .motion import Motion, reference_changed
 from .recovery import Recovery
 from .run_clock import RunClock
 from .runtime_interface import RuntimeInterface
+from .surface import SurfaceNormal
 from ..config.params import ControllerParams
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
 from ..law.reference import Reference
@@ -75,6 +77,7 @@ class ControllerRuntime(RuntimeInterface):
         self._motion = Motion(params, model.task_index)
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
+        self._normal = SurfaceNormal(params, model.task_axes)  # n, or n_hat (surface.py)
         self.validator = SetValidator(model)
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
         self._restarted = False  # a restart's episode begins at the next start
@@ -105,9 +108,14 @@ class ControllerRuntime(RuntimeInterface):
         self._command.configure(self.model.joint_names, rt.joints, rt.effort_limits,
                                 rt.max_effort_rate)
         self._motion.configure(params)
+        self._normal.configure(params, self.ctrl, self._motion)
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
         self.ctrl.set_force_setpoint(self._motion.force.value, self._motion.force.fdot)
+
+    def _reference_at(self, tau: float) -> Reference:
+        """Return the reference at the run's time ``tau`` (n_hat's tangent plane: surface.py)."""
+        return self._normal.reference(self._motion, tau, self._in)
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
@@ -127,14 +135,16 @@ class ControllerRuntime(RuntimeInterface):
         dt_state, dt_int = self._state_step(stalled or self._restarted)
         if self._motion.force_ramping:
             self.ctrl.set_force_setpoint(*self._motion.force_step(dt_state))
-        f_n = float(self._params.law.n.dot(f_W))
+        f_n = float(self._normal.n_W.dot(f_W))
         touching = self._contact.update(f_n, self.ctrl.f_d, self._in.state.t)
+        if self._normal.enabled and dt_state > 0.0:  # the normal estimate (surface.py)
+            self._normal.update(f_W, self._in.kin(), dt_state, touching, self._motion)
         if touching and self._in.tare is not None:
             self._in.tare.abort('the tool touched the surface during the tare')
         self._transitions(touching, stalled, f_W, t)
         approach = self._approach_ref(dt_state)
         self._motion.advance_path(dt_state, self.mode == Mode.RUNNING and touching)
-        ref = self._motion(self.run_time)
+        ref = self._reference_at(self.run_time)
         try:
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self.ctrl.f_d),
@@ -144,7 +154,8 @@ class ControllerRuntime(RuntimeInterface):
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
         if dt_state > 0.0:
-            self._stiffness.update(self.ctrl, f_n, out.kin.p_W, dt_state, dt_int, touching)
+            self._normal.feed_stiffness(self._stiffness, self.ctrl, f_n, out.kin.p_W, dt_state,
+                                        dt_int, touching)
         self._motion.r_n, self._motion.rdot_n = out.r_n, out.rdot_n
         self._observe(t, f_n, out.e, touching)
         return self._running_output(out.tau, out, ref, f_W)
@@ -193,7 +204,7 @@ class ControllerRuntime(RuntimeInterface):
             self._begin('contact_loss', t)
             self._enter_approach()
         elif self.mode in (Mode.APPROACH, Mode.NO_SURFACE) and touching:
-            r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._params.law.n @ f_W))
+            r_f, rdot_f = self.ctrl.force_loop_r_n(float(self._normal.n_W @ f_W))
             self._motion.start_handover(self._in.state.t, r_f, rdot_f)
             self.mode = Mode.RUNNING
 
@@ -301,4 +312,4 @@ class ControllerRuntime(RuntimeInterface):
         return TickOutput(tau, mode, x_W, x_W if ref is None else ref.x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat, self._motion.path_progress(),
-                          None if ref is None else ref.xdot_d_W)
+                          None if ref is None else ref.xdot_d_W, self._normal.n_W)

@@ -30,7 +30,8 @@ class TickOutput:
     3-D vectors are in the base frame; ``tau`` is in the order of ``params.runtime.joints``, None
     while waiting; ``k_hat`` is the stiffness estimate, N/m, NaN while unknown; ``path`` the
     progress of a user's path (path_run.py); ``xdot_d_W`` the reference's velocity (None
-    while not running).
+    while not running); ``n_W`` the surface normal in use (the ``n`` parameter, or the
+    estimate n_hat with ``n_estimation``; runtime/surface.py).
     """
 
     tau: np.ndarray | None
@@ -46,3 +47,4 @@ class TickOutput:
     k_hat: float = math.nan
     path: PathProgress = IDLE
     xdot_d_W: np.ndarray | None = None
+    n_W: np.ndarray | None = None

@@ -64,11 +64,16 @@ class Motion:
         """Install a validated set's approach and normal (the reference: :meth:`replan`)."""
         rt = params.runtime
         self.n_W = params.law.n
-        self.n_task = params.law.n[self.task_index]
+        self.n_task, self._n_moved = params.law.n[self.task_index], False
         self.approach.configure(rt.approach_speed, rt.approach_limit)
         self.path_max_accel = rt.path_max_accel
         self.force.configure(params.law.f_d, rt.f_d_rate)  # a new f_d is ramped to
         self.f_d_W = self.force.value * params.law.n  # the desired force, base frame
+
+    def set_normal(self, n_W: np.ndarray) -> None:
+        """Use the normal ``n_W`` (an estimate, runtime/surface.py) for the approach and f_d n."""
+        self.n_W, self._n_moved = n_W, True
+        self.f_d_W = self.force.value * n_W
 
     @property
     def force_ramping(self) -> bool:
@@ -149,6 +154,10 @@ class Motion:
         """Return the reference along the surface at ``tau``."""
         return self.ref(tau)
 
+    def rows(self, tau: float) -> np.ndarray:
+        """Return the reference at ``tau`` as rows x_d, xdot_d, xddot_d (a new (3, 3) array)."""
+        return self.ref.rows(tau)
+
     def start_from(self, tau: float, p_W: np.ndarray, pdot_W: np.ndarray) -> None:
         """Blend the reference from the tool's position and velocity (an approach goes on)."""
         self.ref.start_from(tau, p_W, pdot_W)
@@ -159,13 +168,19 @@ class Motion:
         """Say whether an approach is configured (``approach_speed`` > 0)."""
         return self.approach.speed > 0.0
 
+    def _n_of_task(self) -> np.ndarray:
+        """Return n in task coordinates (an estimate's after set_normal, computed when asked)."""
+        if self._n_moved:
+            self.n_task, self._n_moved = self.n_W[self.task_index], False
+        return self.n_task
+
     def enter_approach(self, x_task: np.ndarray) -> None:
         """Begin an approach from the tool's task position, with its normal velocity."""
-        self.approach.start(float(self.n_task @ x_task), self.r_n)
+        self.approach.start(float(self._n_of_task() @ x_task), self.r_n)
 
     def approach_step(self, dt: float, x_task: np.ndarray) -> ApproachRef:
         """Advance the approach ``dt`` seconds with the tool at ``x_task``; what the law tracks."""
-        return self.approach.step(dt, float(self.n_task @ x_task))
+        return self.approach.step(dt, float(self._n_of_task() @ x_task))
 
     def start_handover(self, t: float, r_f: float, rdot_f: float) -> None:
         """Contact found at ``t``: fade the approach's normal r, rdot into the force loop's."""

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .inputs import InputError
+from .surface import NormalStatus
 from .tare import Tare
 from ..config.params import ControllerParams
 from ..law.path import PathPlan
@@ -152,4 +153,8 @@ class RuntimeInterface:
     def reference(self, t: float) -> Reference:
         """Return the reference at time ``t`` on the caller's clock (a path: at its clock)."""
         t0 = self._clock.t0
-        return self._motion(0.0 if t0 is None else t - t0)
+        return self._reference_at(0.0 if t0 is None else t - t0)
+
+    def normal_status(self) -> NormalStatus:
+        """Return the normal in use and the estimate's state, for /diagnostics."""
+        return self._normal.status()

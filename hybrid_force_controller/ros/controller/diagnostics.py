@@ -59,6 +59,10 @@ def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
     if k.enabled and k.near_k_max:
         out.append(f'stiffness estimate {k.k_hat:.0f} N/m near k_max: eq. (29) holds with '
                    'little margin')
+    normal = runtime.normal_status()
+    if normal.limited:
+        out.append(f'the surface normal seems more than {normal.angle_from_n_deg:.0f} deg from '
+                   'n: the controller holds it there (is n right?)')
     out.extend(str(w) for w in extra.get('warnings', ()))
     return out
 
@@ -99,7 +103,8 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                      for k, v in runtime.clock_offsets().items()},
                   **_recovery_values(runtime),
                   **{f'stiffness_{k}': (f'{v:.4g}' if isinstance(v, float) else v)
-                     for k, v in runtime.stiffness_status()._asdict().items()}}
+                     for k, v in runtime.stiffness_status()._asdict().items()},
+                  **_normal_values(runtime)}
     values.update({f'loop_{k}': (f'{v:.4g}' if k != 'samples' else int(v))
                    for k, v in timing.items()})
     values.update({f'callback_errors_{k}': v for k, v in callback_errors.items()})
@@ -126,6 +131,23 @@ def clock_offset_warnings(offsets: Mapping[str, float], warned: set) -> list[str
                        'removes it (max_clock_skew; /diagnostics '
                        f'{stream}_clock_offset_s)')
     return out
+
+
+def _normal_values(runtime: ControllerRuntime) -> dict[str, object]:
+    """
+    Return the surface normal (core/runtime/surface.py): the one in use and the estimate's state.
+
+    ``normal_n_hat`` is the normal the controller uses (base frame; the ``n`` parameter when
+    ``normal_estimation`` is false), ``normal_angle_from_n_deg`` its angle from ``n``,
+    ``normal_mu_hat`` the friction coefficient the estimate removes, ``normal_state`` what its
+    last sample did (sliding, at_rest, no_contact, low_force, implausible, rejected; off).
+    """
+    s = runtime.normal_status()
+    return {'normal_estimation': s.enabled, 'normal_n_hat': ', '.join(f'{v:.4g}' for v in s.n_hat),
+            'normal_angle_from_n_deg': f'{s.angle_from_n_deg:.4g}',
+            'normal_mu_hat': f'{s.mu_hat:.4g}', 'normal_state': s.state,
+            'normal_samples_used': s.samples_used,
+            'normal_samples_rejected': s.samples_rejected, 'normal_limited': s.limited}
 
 
 def _recovery_values(runtime: ControllerRuntime) -> dict[str, object]:

@@ -3,8 +3,9 @@
 
 From the latest tick's output (never on the control thread), about 10 Hz: the path being
 followed as a line strip, the current reference point, the measured contact force as an
-arrow (the force the tool exerts, :data:`FORCE_SCALE_M_PER_N`), the normal n as an arrow
-from the tool, and a patch of the surface's plane through the tool. The messages are built
+arrow (the force the tool exerts, :data:`FORCE_SCALE_M_PER_N`), the normal the controller uses
+as an arrow from the tool (n, or its estimate n_hat with ``n_estimation``), and a patch of the
+tangent plane through the tool. The messages are built
 once and refilled in place; the path's points only when the path changes.
 """
 from __future__ import annotations

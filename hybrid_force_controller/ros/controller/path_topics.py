@@ -131,7 +131,8 @@ class PathTopics:
             return  # nobody looks (RViz closed): no markers built
         drawn = self.plan is not None and self.status not in (PATH_STOPPED, PATH_IDLE)
         self.markers.set_path((self.seq, drawn), self.plan.polyline() if drawn else None)
-        self.markers.publish(out, stamp_ns, self.node.params.law.n)
+        self.markers.publish(out, stamp_ns,
+                             self.node.params.law.n if out.n_W is None else out.n_W)
 
     def _publish_status(self, status: str) -> None:
         self.status = status

@@ -3,8 +3,9 @@ The user's task inputs of the controller node, on the node's thread (never the c
 
 * ``~/reference`` (geometry_msgs/PointStamped, base frame): hold a point instead of the sine.
 * ``~/target_wrench`` (geometry_msgs/WrenchStamped, base frame), as FZI's force controller
-  takes it: its force along n is the force the tool should exert on the surface, so it sets
-  the ``f_d`` parameter (validated, and ramped at ``f_d_rate``, like ``ros2 param set f_d``).
+  takes it: its force along n (the normal in use: n_hat with ``n_estimation``) is the force
+  the tool should exert on the surface, so it sets the ``f_d`` parameter (validated, and
+  ramped at ``f_d_rate``, like ``ros2 param set f_d``).
 * ``~/tare`` (std_srvs/Trigger): average the raw force reading over ``tare_time`` with the tool
   still and off the surface, then store the sensor's bias in ``wrench_offset`` (a parameter:
   ``ros2 param dump`` saves it, a restart from the dump keeps it). The call answers when the
@@ -80,7 +81,10 @@ class TaskInterface:
         force = (f.x, f.y, f.z)
         if not all(math.isfinite(x) for x in force):
             raise InputError(f'target_wrench force must be finite, got {list(force)}')
-        f_d = float(sum(a * b for a, b in zip(self.node.params.law.n, force)))
+        latest = self.node.loop.latest if self.node.loop is not None else None
+        n = latest[0].n_W if latest is not None and latest[0].n_W is not None else None
+        n = self.node.params.law.n if n is None else n  # the normal in use: n, or n_hat
+        f_d = float(sum(a * b for a, b in zip(n, force)))
         if f_d == self.node.get_parameter('f_d').value:
             return
         result = self.node.set_parameters([Parameter('f_d', value=f_d)])[0]

@@ -4,9 +4,11 @@ The controller's outgoing messages, built once and refilled in place.
 :class:`EffortOutput` is the effort publisher of the control thread (every tick);
 :class:`ControllerOutputs` the telemetry publishers of the controller node (``~/x``,
 ``~/x_desired``, ``~/wrench``, ``~/wrench_desired``, ``~/error``, ``~/theta_hat``,
-``~/stiffness_estimate``; at ``telemetry_rate_hz``, from the latest tick, on the node's
-thread). The effort and theta_hat data live in ``array.array('d')`` buffers that numpy
-views write into, so a tick allocates no message.
+``~/stiffness_estimate``, ``~/surface_normal``; at ``telemetry_rate_hz``, from the latest
+tick, on the node's thread). ``~/surface_normal`` (geometry_msgs/Vector3Stamped, base frame)
+is the normal the controller uses: the ``n`` parameter, or with ``n_estimation`` its
+estimate n_hat (core/runtime/surface.py). The effort and theta_hat data live in
+``array.array('d')`` buffers that numpy views write into, so a tick allocates no message.
 """
 from __future__ import annotations
 
@@ -63,14 +65,15 @@ class ControllerOutputs:
         self.theta_msg, self.theta_view = _buffer_msg(p, layout)
         self.x, self.x_d = PointStamped(), PointStamped()
         self.f, self.f_d = WrenchStamped(), WrenchStamped()
-        self.e = Vector3Stamped()
-        self.stamped = (self.x, self.x_d, self.f, self.f_d, self.e)
+        self.e, self.n = Vector3Stamped(), Vector3Stamped()
+        self.stamped = (self.x, self.x_d, self.f, self.f_d, self.e, self.n)
         for msg in self.stamped:
             msg.header.frame_id = base_frame
         self.vectors = (self.x.point, self.x_d.point, self.f.wrench.force,
                         self.f_d.wrench.force, self.e.vector)
         topics = (('~/x', self.x), ('~/x_desired', self.x_d), ('~/wrench', self.f),
-                  ('~/wrench_desired', self.f_d), ('~/error', self.e))
+                  ('~/wrench_desired', self.f_d), ('~/error', self.e),
+                  ('~/surface_normal', self.n))
         self.telemetry = [(node.create_publisher(type(m), t, TELEMETRY_QOS), m)
                           for t, m in topics]
         self.telemetry.append((node.create_publisher(Float64MultiArray, '~/theta_hat',
@@ -85,6 +88,9 @@ class ControllerOutputs:
         for msg in self.stamped:
             msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
         for target, v in zip(self.vectors, (out.x_W, out.x_d_W, out.f_W, out.f_d_W, out.e_W)):
+            target.x, target.y, target.z = float(v[0]), float(v[1]), float(v[2])
+        if out.n_W is not None:
+            v, target = out.n_W, self.n.vector
             target.x, target.y, target.z = float(v[0]), float(v[1]), float(v[2])
         self.theta_view[:] = out.theta_hat
         self.k_msg.data = float(out.k_hat)

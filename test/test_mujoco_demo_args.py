@@ -10,6 +10,8 @@ import argparse
 
 from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
 from hybrid_force_controller.ros.programs.demo import _scenario_args, main
+from hybrid_force_controller.ros.programs.send_path import square_poses
+import numpy as np
 import pytest
 
 
@@ -47,3 +49,23 @@ def test_the_panda_on_mujoco_has_its_table_friction_and_tool():
 def test_mujoco_options_need_mujoco(argv, capsys):
     assert main([*argv, '--out', '/nonexistent/never']) == 2
     assert 'needs --physics mujoco' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('argv', [['--surface', 'tilted'],
+                                  ['--surface', 'sphere', '--task', 'wipe'],
+                                  ['--arm', 'panda', '--surface', 'cylinder']])
+def test_a_surface_needs_the_pandas_wipe(argv, capsys):
+    assert main([*argv, '--out', '/nonexistent/never']) == 2
+    assert '--surface needs --task wipe and --arm panda' in capsys.readouterr().err
+
+
+def test_the_wipes_square_centred_in_the_told_plane():
+    """Demo --surface: send_path --centred --normal 0 0 -1 gives a square around the tool."""
+    start = np.array([0.48, 0.0, 0.41])
+    corners = square_poses(start, np.array([0.0, 0.0, -1.0]), 0.1, centred=True)
+    assert corners.shape == (5, 3) and np.allclose(corners[0], corners[-1])
+    assert np.allclose(corners[:4].mean(axis=0), start)  # centred on the tool
+    assert np.allclose(corners[:, 2], start[2])  # in the told plane
+    sides = np.linalg.norm(np.diff(corners, axis=0), axis=1)
+    assert np.allclose(sides, 0.1)
+    assert np.allclose(square_poses(start, np.array([0.0, 0.0, -1.0]), 0.1)[0], start)

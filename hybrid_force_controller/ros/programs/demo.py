@@ -26,6 +26,13 @@ to be done; the recording ends 1 s later. The metrics then start when the path s
 tangent plane), ``rms_force_error_n`` (the true force along n), ``contact_lost_s``; metrics.json
 also records ``task`` and ``tared``. ``demo --arm panda --physics mujoco --task wipe`` is the
 issue's wiping demo: 5 N, 5 cm/s, mu 0.3, masses 30 % off.
+
+``--surface plane|tilted|tilted_y|cylinder|sphere`` (with ``--task wipe --arm panda``) puts a
+workpiece the controller only roughly knows under the tool (surfaces.py): a plane tilted
+0.3 rad about x or y, a cylinder R 0.3 m across the path, a sphere R 0.5 m. The controller is
+told n = [0, 0, -1] in every case and learns n_hat (``n_estimation``); the script sends its
+square in the told plane, centred on the tool. metrics.json then has ``normal_error_deg`` and
+``surface``, and the report draws n_hat against the sim's ``sim/contact_normal`` (fig8).
 """
 from __future__ import annotations
 
@@ -41,6 +48,7 @@ import time
 from typing import Any, Sequence
 
 from .launch import find_config, PAPER_MASSES_OFF, PKG
+from .surfaces import surface_settings, SURFACES, SurfaceSettings, TOLD_N
 
 #: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
 #: Panda's wrist sensor, which the controller compensates; the paper's arm keeps a massless tip
@@ -69,6 +77,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="sine: the paper's reference (default); wipe: tare the biased sensor, "
                     'then wipe a --side square from a separate script (wipe.py)')
     ap.add_argument('--side', type=float, default=0.1, help='wipe: side of the square, m')
+    ap.add_argument('--surface', choices=SURFACES, default=None,
+                    help='wipe, the Panda: the workpiece (surfaces.py), the controller told '
+                    'n = [0, 0, -1] with n_estimation, the square centred on the tool in the '
+                    'told plane (default: the table, n told right, no estimation)')
     ap.add_argument('--no-tare', action='store_true',
                     help='wipe: skip the tare (the sensor bias stays in the force)')
     ap.add_argument('--tool-mass', type=float, default=None,
@@ -182,6 +194,8 @@ def _check(args: argparse.Namespace) -> str:
             return f'--{name} needs --physics mujoco and a value >= 0'
     if args.task == 'wipe' and not 0.0 < args.side <= 0.5:
         return '--side must be in (0, 0.5] m'
+    if args.surface is not None and (args.task != 'wipe' or args.arm != 'panda'):
+        return '--surface needs --task wipe and --arm panda'
     return ''
 
 
@@ -191,6 +205,8 @@ def _operator(args: argparse.Namespace, env: dict[str, str]) -> Any:
         return None
     from .wipe import WipeOperator
     script = [f'{PKG}.ros.programs.send_path', '--side', repr(args.side)]
+    if args.surface is not None:  # in the told plane, over the sphere's top
+        script += ['--centred', '--normal', *(repr(v) for v in TOLD_N)]
     return lambda node: WipeOperator(node, not args.no_tare, script, env,
                                      args.out / 'script.log', F_D[args.arm])
 
@@ -200,10 +216,12 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, fl
     from .wipe import WIPE_CONTROLLER_ARGS, WIPE_SIM_ARGS
     ros_args, mu, tool_mass = _scenario_args(args)
     wipe = args.task == 'wipe'
+    shape = (surface_settings(args.surface) if args.surface is not None
+             else SurfaceSettings((), ()))
     env = dict(os.environ)
     procs = _start_nodes(ros_args, mu, args.lockstep, env, args.out,
-                         _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []),
-                         WIPE_CONTROLLER_ARGS if wipe else [])
+                         _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []) + [*shape.sim_args],
+                         (WIPE_CONTROLLER_ARGS if wipe else []) + [*shape.ctrl_args])
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout, _operator(args, env))
     except (RuntimeError, TimeoutError) as exc:
@@ -260,7 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if code == 0:
         _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
                   friction=mu, tool_mass=tool_mass, task=args.task,
-                  tared=args.task == 'wipe' and not args.no_tare)
+                  tared=args.task == 'wipe' and not args.no_tare, surface=args.surface)
         figures = ', '.join(p.name for p in sorted(report_dir.glob('fig*.png')))
         print(f'bag:     {bag}\nfigures: {report_dir}/{figures}\n'
               f'metrics: {report_dir}/metrics.json')

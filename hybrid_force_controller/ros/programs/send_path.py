@@ -23,16 +23,17 @@ __all__ = ['main', 'square_poses']
 CONTROLLER = 'hybrid_force_controller'
 
 
-def square_poses(start_W: np.ndarray, n_W: np.ndarray, side: float) -> np.ndarray:
+def square_poses(start_W: np.ndarray, n_W: np.ndarray, side: float,
+                 centred: bool = False) -> np.ndarray:
     """
     Return the corners of a square of ``side`` m from ``start_W``, closed, in the tangent plane.
 
     Its edges run along the surface's in-plane axes (tools/path_analysis.py ``surface_basis``),
-    counter-clockwise seen from the tool.
+    counter-clockwise seen from the tool. ``centred``: ``start_W`` is its centre, not a corner.
     """
     from ...tools.path_analysis import surface_basis
     u, v = surface_basis(np.asarray(n_W, dtype=float))
-    p0 = np.asarray(start_W, dtype=float)
+    p0 = np.asarray(start_W, dtype=float) - (0.5 * side * (u + v) if centred else 0.0)
     return np.array([p0, p0 + side * u, p0 + side * (u + v), p0 + side * v, p0])
 
 
@@ -42,6 +43,11 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--controller', default=CONTROLLER,
                     help="the controller node (relative: under this process's namespace)")
     ap.add_argument('--timeout', type=float, default=120.0, help='wall-time limit, s')
+    ap.add_argument('--normal', type=float, nargs=3, default=None, metavar=('X', 'Y', 'Z'),
+                    help="the square's plane's normal, base frame (default: the one the "
+                    'controller presses along)')
+    ap.add_argument('--centred', action='store_true',
+                    help='the square centred on the tool (default: its first corner there)')
     return ap
 
 
@@ -92,13 +98,14 @@ class _Script:
         return sent
 
 
-def _run(script: _Script, spin, side: float, deadline: float) -> int:
+def _run(script: _Script, spin, args: argparse.Namespace, deadline: float) -> int:
     while not script.ready():
         if not spin(deadline):
             print('send_path: the controller did not come up', file=sys.stderr)
             return 2
-    n_W = script.f_d / np.linalg.norm(script.f_d)
-    sent = script.send(square_poses(script.x, n_W, side))
+    n_W = np.asarray(args.normal if args.normal is not None else script.f_d, dtype=float)
+    side = args.side
+    sent = script.send(square_poses(script.x, n_W / np.linalg.norm(n_W), side, args.centred))
     print(f'send_path: a {side * 100:.0f} cm square from {np.round(script.x, 4).tolist()}')
     shown = -1
     while True:
@@ -121,6 +128,11 @@ def _run(script: _Script, spin, side: float, deadline: float) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Send the square and wait for it to be done (exit codes: module docstring)."""
     args = _parser().parse_args(argv)
+    if args.normal is not None and not (np.all(np.isfinite(args.normal))
+                                        and np.linalg.norm(args.normal) > 0.0):
+        print(f'send_path: --normal must be finite and nonzero, got {args.normal}',
+              file=sys.stderr)
+        return 2
     import rclpy
     rclpy.init()
     node = rclpy.create_node('send_path')
@@ -130,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         def spin(deadline: float) -> bool:
             rclpy.spin_once(node, timeout_sec=0.05)
             return time.monotonic() < deadline
-        return _run(script, spin, args.side, time.monotonic() + args.timeout)
+        return _run(script, spin, args, time.monotonic() + args.timeout)
     except KeyboardInterrupt:
         return 2
     finally:

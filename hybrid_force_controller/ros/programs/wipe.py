@@ -5,9 +5,14 @@ The sim's force sensor has a bias (``sensor_offset``); the controller starts unc
 (``autostart:=false``) and holds still (no sine). :class:`WipeOperator` then does what an
 operator's program does, in order: configure the controller (lifecycle service), tare its sensor
 (``~/tare``, the arm held by the sim's brakes, the tool touching with no force) unless
-``--no-tare``, activate it, wait until it presses ``f_d``, and start the user's script
-(send_path.py, a separate process) that sends a square on ``~/path`` and waits for it to be
-done. The recording stops :data:`AFTER_S` after the script ends.
+``--no-tare``, activate it, wait until it presses ``f_d``, and tell the user's script
+(send_path.py, a separate process) to send a square on ``~/path``; the script waits for it to
+be done. The recording stops :data:`AFTER_S` after the script ends.
+
+The script's process starts first, before the controller is configured, and waits for a line
+on its stdin: a DDS participant that joins a running cell stalled the sim and the controller
+for 0.1-0.37 s in 20-50 % of the joins here (docs/results.md, section 10), and a stall of that
+length trips the sim's command watchdog, which drops the arm.
 """
 from __future__ import annotations
 
@@ -48,6 +53,7 @@ class WipeOperator:
         self.script: subprocess.Popen | None = None
         self.tare_message = ''
         self.script_code: int | None = None
+        self.script_told = False  # the script's go (a line on its stdin)
 
     def _on_force(self, msg: Any, f_d: float) -> None:
         f = msg.wrench.force
@@ -55,6 +61,11 @@ class WipeOperator:
 
     def poll(self, elapsed: float) -> bool:
         """Advance the steps at recording time ``elapsed`` (s); True when all are done."""
+        if self.script is None:  # its node joins now, while nothing moves
+            with open(self.log_path, 'wb') as log:
+                self.script = subprocess.Popen(
+                    [sys.executable, '-m', *self.script_cmd, '--wait-stdin'], env=self.env,
+                    stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT)
         if not self.steps:
             return True
         step = self.steps[0]
@@ -118,11 +129,13 @@ class WipeOperator:
         return touching and elapsed - self.t_step >= SETTLE_S
 
     def _script(self, elapsed: float, touching: bool) -> bool:
-        if self.script is None:
-            with open(self.log_path, 'wb') as log:
-                self.script = subprocess.Popen([sys.executable, '-m', *self.script_cmd],
-                                               env=self.env, stdout=log,
-                                               stderr=subprocess.STDOUT)
+        if not self.script_told:
+            self.script_told = True
+            try:
+                self.script.stdin.write(b'go\n')
+                self.script.stdin.close()
+            except BrokenPipeError:  # it ended already: its code says why, below
+                pass
         code = self.script.poll()
         if code is None:
             return False

@@ -20,6 +20,18 @@ def test_summary_counts_every_hold_with_its_exact_max_and_binned_p999():
     assert s['all_count'] == 1001 and math.isclose(s['all_max_ms'], 12.3)
 
 
+def test_the_mean_hold_is_within_a_bin_and_nan_without_samples():
+    """{kind}_mean_ms: what a kind of callback costs the thread per call (count x mean)."""
+    holds = HoldStats(('joint_states', 'wrench'))
+    for d in (0.00012, 0.00031, 0.00047):
+        holds.record('joint_states', d)
+    s = holds.summary()
+    exact = (0.12 + 0.31 + 0.47) / 3
+    assert abs(s['joint_states_mean_ms'] - exact) <= HoldStats.BIN_S * 1e3
+    assert math.isclose(s['all_mean_ms'], s['joint_states_mean_ms'])
+    assert math.isnan(s['wrench_mean_ms'])
+
+
 def test_where_names_the_longest_hold_and_its_phases_and_reset_forgets_it():
     holds = HoldStats(('joint_states', 'wrench'))
     assert holds.where() == ''

@@ -69,3 +69,8 @@ def test_the_wipes_square_centred_in_the_told_plane():
     sides = np.linalg.norm(np.diff(corners, axis=0), axis=1)
     assert np.allclose(sides, 0.1)
     assert np.allclose(square_poses(start, np.array([0.0, 0.0, -1.0]), 0.1)[0], start)
+
+
+def test_a_node_parameter_is_name_colon_equals_value(capsys):
+    assert main(['--sim-param', 'surface_normal=[0, 1, 0]', '--out', '/nonexistent/never']) == 2
+    assert "a parameter is NAME:=VALUE, got 'surface_normal=[0, 1, 0]'" in capsys.readouterr().err

@@ -102,9 +102,11 @@ class HoldStats:
 
     def summary(self) -> dict[str, float]:
         """
-        Return ``{kind}_count``, ``{kind}_max_ms``, ``{kind}_p999_ms`` and the same for ``all``.
+        Return ``{kind}_count``, ``_max_ms``, ``_p999_ms``, ``_mean_ms`` and the same for ``all``.
 
-        p99.9 is the upper edge of the bin that holds it (NaN without samples).
+        p99.9 is the upper edge of the bin that holds it, the mean is over the bins' middles
+        (within ``BIN_S``; what a kind costs the thread: count times mean), NaN without
+        samples.
         """
         out: dict[str, float] = {}
         hists = {k: np.array(h) for k, h in self._hist.items()}
@@ -113,12 +115,13 @@ class HoldStats:
         maxima['all'] = max(maxima.values(), default=0.0)
         for kind, h in hists.items():
             count = int(h.sum())
-            p999 = math.nan
+            p999 = mean = math.nan
             if count:
                 p999 = min((int(np.searchsorted(np.cumsum(h), 0.999 * count)) + 1)
                            * self.BIN_S, maxima[kind]) * 1e3
+                mean = float(h @ (np.arange(self.N_BINS) + 0.5)) / count * self.BIN_S * 1e3
             out.update({f'{kind}_count': float(count), f'{kind}_max_ms': maxima[kind] * 1e3,
-                        f'{kind}_p999_ms': p999})
+                        f'{kind}_p999_ms': p999, f'{kind}_mean_ms': mean})
         return out
 
 

@@ -156,11 +156,25 @@ def _sim_window(reports: list[dict[str, str]]) -> dict[str, float]:
 
 
 def _controller_holds(ctrl: dict[str, str]) -> dict[str, Any]:
-    """Return the controller's holds: the longest (and where it went), each kind's max, p99.9."""
+    """
+    Return the controller's holds: the longest (and where), each kind's max, p99.9 and mean.
+
+    ``controller_callbacks_ms_per_state``: the control thread's time inside its callbacks
+    (decode, tick, publish: Python) per joint state received; at 1 kHz, x 100 is its percent
+    of a core, against the thread's whole CPU in ``cpu_percent_per_thread``.
+    """
     keys = [k for k in ctrl if k.startswith('hold_') or k.startswith('loop_hold_')]
     out: dict[str, Any] = {f'controller_{k}': float(ctrl[k]) for k in keys
                            if not k.endswith(('_count', '_where'))}
     out['controller_loop_hold_max_where'] = ctrl.get('loop_hold_max_where', '')
+    # the control thread inside its Python callbacks, per joint state (1 kHz: % of a core)
+    kinds = [k[len('hold_'):-len('_count')] for k in ctrl
+             if k.startswith('hold_') and k.endswith('_count')]
+    n_states = float(ctrl.get('hold_joint_states_count', 0.0))
+    busy = sum(float(ctrl[f'hold_{k}_count']) * float(ctrl.get(f'hold_{k}_mean_ms', 0.0))
+               for k in kinds if float(ctrl[f'hold_{k}_count']) > 0.0)
+    out['controller_callbacks_ms_per_state'] = round(busy / n_states, 4) if n_states else \
+        float('nan')
     return out
 
 

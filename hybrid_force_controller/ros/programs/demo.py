@@ -81,6 +81,12 @@ def _parser() -> argparse.ArgumentParser:
                     help='wipe, the Panda: the workpiece (surfaces.py), the controller told '
                     'n = [0, 0, -1] with n_estimation, the square centred on the tool in the '
                     'told plane (default: the table, n told right, no estimation)')
+    ap.add_argument('--sim-param', action='append', default=[], metavar='NAME:=VALUE',
+                    help="a parameter of the sim's, after the others (repeat): e.g. "
+                    "'surface_normal:=[-0.2955, -0.9553, 0.0]'")
+    ap.add_argument('--controller-param', action='append', default=[], metavar='NAME:=VALUE',
+                    help="a parameter of the controller's, after the others (repeat): e.g. "
+                    'n_estimation:=true')
     ap.add_argument('--no-tare', action='store_true',
                     help='wipe: skip the tare (the sensor bias stays in the force)')
     ap.add_argument('--tool-mass', type=float, default=None,
@@ -196,6 +202,9 @@ def _check(args: argparse.Namespace) -> str:
         return '--side must be in (0, 0.5] m'
     if args.surface is not None and (args.task != 'wipe' or args.arm != 'panda'):
         return '--surface needs --task wipe and --arm panda'
+    for p in args.sim_param + args.controller_param:
+        if ':=' not in p or not p.split(':=', 1)[0]:
+            return f'a parameter is NAME:=VALUE, got {p!r}'
     return ''
 
 
@@ -219,9 +228,13 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, fl
     shape = (surface_settings(args.surface) if args.surface is not None
              else SurfaceSettings((), ()))
     env = dict(os.environ)
+    extra = {who: [a for p in getattr(args, f'{who}_param') for a in ('-p', p)]
+             for who in ('sim', 'controller')}
     procs = _start_nodes(ros_args, mu, args.lockstep, env, args.out,
-                         _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []) + [*shape.sim_args],
-                         (WIPE_CONTROLLER_ARGS if wipe else []) + [*shape.ctrl_args])
+                         _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []) + [*shape.sim_args]
+                         + extra['sim'],
+                         (WIPE_CONTROLLER_ARGS if wipe else []) + [*shape.ctrl_args]
+                         + extra['controller'])
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout, _operator(args, env))
     except (RuntimeError, TimeoutError) as exc:

@@ -9,8 +9,8 @@ operator's program does, in order: configure the controller (lifecycle service),
 (send_path.py, a separate process) to send a square on ``~/path``; the script waits for it to
 be done. The recording stops :data:`AFTER_S` after the script ends.
 
-The script's process starts first, before the controller is configured, and waits for a line
-on its stdin: a DDS participant that joins a running cell stalled the sim and the controller
+The script's process starts first; the controller is configured once its node has been in the
+graph for :data:`DISCOVERY_S`, and the script sends when a line arrives on its stdin: a DDS participant that joins a running cell stalled the sim and the controller
 for 0.1-0.37 s in 20-50 % of the joins here (docs/results.md, section 10), and a stall of that
 length trips the sim's command watchdog, which drops the arm.
 """
@@ -29,6 +29,7 @@ WIPE_SIM_ARGS = ['-p', f'sensor_offset:={SENSOR_BIAS_N}']
 WIPE_CONTROLLER_ARGS = ['-p', 'autostart:=false', '-p', 'ref_amplitude:=[0.0, 0.0, 0.0]']
 SETTLE_S = 1.0  # pressing this long before the path is sent, s
 AFTER_S = 1.0  # recorded after the script is done, s
+DISCOVERY_S = 1.0  # the script's node seen this long before the controller is configured, s
 
 
 class WipeOperator:
@@ -46,8 +47,8 @@ class WipeOperator:
         self.log_path = log_path
         self.change = node.create_client(ChangeState, f'{CONTROLLER}/change_state')
         self.trigger = node.create_client(Trigger, f'{CONTROLLER}/tare')
-        self.steps = ['configure', *(['tare'] if tare else []), 'activate', 'settle', 'script',
-                      'after']
+        self.steps = ['script_up', 'configure', *(['tare'] if tare else []), 'activate',
+                      'settle', 'script', 'after']
         self.future = None
         self.t_step = 0.0
         self.script: subprocess.Popen | None = None
@@ -99,6 +100,15 @@ class WipeOperator:
         if not self.future.result().success:
             raise RuntimeError(f'the controller refused lifecycle transition {transition_id}')
         return True
+
+    def _script_up(self, elapsed: float, touching: bool) -> bool:
+        """Wait until the script's node is in the graph, and DISCOVERY_S more."""
+        if 'send_path' not in self.node.get_node_names():
+            self.t_step = elapsed
+            if self.script.poll() is not None:
+                raise RuntimeError(f'the path script ended with {self.script.poll()}; '
+                                   f'see {self.log_path}')
+        return elapsed - self.t_step >= DISCOVERY_S
 
     def _configure(self, elapsed: float, touching: bool) -> bool:
         from lifecycle_msgs.msg import Transition

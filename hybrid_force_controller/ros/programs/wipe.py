@@ -10,9 +10,10 @@ operator's program does, in order: configure the controller (lifecycle service),
 be done. The recording stops :data:`AFTER_S` after the script ends.
 
 The script's process starts first; the controller is configured once its node has been in the
-graph for :data:`DISCOVERY_S`, and the script sends when a line arrives on its stdin: a DDS participant that joins a running cell stalled the sim and the controller
-for 0.1-0.37 s in 20-50 % of the joins here (docs/results.md, section 10), and a stall of that
-length trips the sim's command watchdog, which drops the arm.
+graph for :data:`DISCOVERY_S`, and the script sends when a line arrives on its stdin: a DDS
+participant that joins a running cell stalled the sim and the controller for 0.1-0.37 s in
+20-50 % of the joins here (docs/results.md, section 11), and a stall of that length trips the
+sim's command watchdog, which drops the arm.
 """
 from __future__ import annotations
 

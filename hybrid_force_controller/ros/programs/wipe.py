@@ -29,6 +29,7 @@ WIPE_SIM_ARGS = ['-p', f'sensor_offset:={SENSOR_BIAS_N}']
 # unconfigured until the operator's program says; no sine: hold where the tool is until the path
 WIPE_CONTROLLER_ARGS = ['-p', 'autostart:=false', '-p', 'ref_amplitude:=[0.0, 0.0, 0.0]']
 SETTLE_S = 1.0  # pressing this long before the path is sent, s
+PRESS_TIMEOUT_S = 30.0  # the demo fails when the tool is not pressing this long after activation
 AFTER_S = 1.0  # recorded after the script is done, s
 DISCOVERY_S = 1.0  # the script's node seen this long before the controller is configured, s
 
@@ -56,6 +57,7 @@ class WipeOperator:
         self.tare_message = ''
         self.script_code: int | None = None
         self.script_told = False  # the script's go (a line on its stdin)
+        self.t_pressing: float | None = None  # when the settle step began
 
     def _on_force(self, msg: Any, f_d: float) -> None:
         f = msg.wrench.force
@@ -135,6 +137,11 @@ class WipeOperator:
         return True
 
     def _settle(self, elapsed: float, touching: bool) -> bool:
+        if self.t_pressing is None:
+            self.t_pressing = elapsed
+        if elapsed - self.t_pressing > PRESS_TIMEOUT_S:
+            raise RuntimeError(f'the tool did not press f_d within {PRESS_TIMEOUT_S:.0f} s of the '
+                               "activation; see the controller's log")
         if not touching:
             self.t_step = elapsed
         return touching and elapsed - self.t_step >= SETTLE_S

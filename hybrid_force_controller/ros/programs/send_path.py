@@ -48,9 +48,6 @@ def _parser() -> argparse.ArgumentParser:
                     'controller presses along)')
     ap.add_argument('--centred', action='store_true',
                     help='the square centred on the tool (default: its first corner there)')
-    ap.add_argument('--wait-stdin', action='store_true',
-                    help='send once a line arrives on stdin (the node up and discovered '
-                    'long before: a participant that joins a running cell can stall it)')
     return ap
 
 
@@ -101,19 +98,7 @@ class _Script:
         return sent
 
 
-def _go(spin, deadline: float) -> bool:
-    """Spin until a line arrives on stdin (``--wait-stdin``); False on the deadline or EOF."""
-    import select
-    while spin(deadline):
-        if select.select([sys.stdin], [], [], 0.0)[0]:
-            return sys.stdin.readline() != ''
-    return False
-
-
 def _run(script: _Script, spin, args: argparse.Namespace, deadline: float) -> int:
-    if args.wait_stdin and not _go(spin, deadline):
-        print('send_path: no go on stdin', file=sys.stderr)
-        return 2
     while not script.ready():
         if not spin(deadline):
             print('send_path: the controller did not come up', file=sys.stderr)

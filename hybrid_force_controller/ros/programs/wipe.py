@@ -5,15 +5,9 @@ The sim's force sensor has a bias (``sensor_offset``); the controller starts unc
 (``autostart:=false``) and holds still (no sine). :class:`WipeOperator` then does what an
 operator's program does, in order: configure the controller (lifecycle service), tare its sensor
 (``~/tare``, the arm held by the sim's brakes, the tool touching with no force) unless
-``--no-tare``, activate it, wait until it presses ``f_d``, and tell the user's script
-(send_path.py, a separate process) to send a square on ``~/path``; the script waits for it to
-be done. The recording stops :data:`AFTER_S` after the script ends.
-
-The script's process starts first; the controller is configured once its node has been in the
-graph for :data:`DISCOVERY_S`, and the script sends when a line arrives on its stdin: a DDS
-participant that joins a running cell stalled the sim and the controller for 0.1-0.37 s in
-20-50 % of the joins here (docs/results.md, section 11), and a stall of that length trips the
-sim's command watchdog, which drops the arm.
+``--no-tare``, activate it, wait until it presses ``f_d``, and start the user's script
+(send_path.py, a separate process) that sends a square on ``~/path`` and waits for it to be
+done. The recording stops :data:`AFTER_S` after the script ends.
 """
 from __future__ import annotations
 
@@ -31,7 +25,6 @@ WIPE_CONTROLLER_ARGS = ['-p', 'autostart:=false', '-p', 'ref_amplitude:=[0.0, 0.
 SETTLE_S = 1.0  # pressing this long before the path is sent, s
 PRESS_TIMEOUT_S = 30.0  # the demo fails when the tool is not pressing this long after activation
 AFTER_S = 1.0  # recorded after the script is done, s
-DISCOVERY_S = 1.0  # the script's node seen this long before the controller is configured, s
 
 
 class WipeOperator:
@@ -49,14 +42,13 @@ class WipeOperator:
         self.log_path = log_path
         self.change = node.create_client(ChangeState, f'{CONTROLLER}/change_state')
         self.trigger = node.create_client(Trigger, f'{CONTROLLER}/tare')
-        self.steps = ['script_up', 'configure', *(['tare'] if tare else []), 'activate',
-                      'settle', 'script', 'after']
+        self.steps = ['configure', *(['tare'] if tare else []), 'activate', 'settle', 'script',
+                      'after']
         self.future = None
         self.t_step = 0.0
         self.script: subprocess.Popen | None = None
         self.tare_message = ''
         self.script_code: int | None = None
-        self.script_told = False  # the script's go (a line on its stdin)
         self.t_pressing: float | None = None  # when the settle step began
 
     def _on_force(self, msg: Any, f_d: float) -> None:
@@ -65,11 +57,6 @@ class WipeOperator:
 
     def poll(self, elapsed: float) -> bool:
         """Advance the steps at recording time ``elapsed`` (s); True when all are done."""
-        if self.script is None:  # its node joins now, while nothing moves
-            with open(self.log_path, 'wb') as log:
-                self.script = subprocess.Popen(
-                    [sys.executable, '-m', *self.script_cmd, '--wait-stdin'], env=self.env,
-                    stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT)
         if not self.steps:
             return True
         step = self.steps[0]
@@ -103,15 +90,6 @@ class WipeOperator:
         if not self.future.result().success:
             raise RuntimeError(f'the controller refused lifecycle transition {transition_id}')
         return True
-
-    def _script_up(self, elapsed: float, touching: bool) -> bool:
-        """Wait until the script's node is in the graph, and DISCOVERY_S more."""
-        if 'send_path' not in self.node.get_node_names():
-            self.t_step = elapsed
-            if self.script.poll() is not None:
-                raise RuntimeError(f'the path script ended with {self.script.poll()}; '
-                                   f'see {self.log_path}')
-        return elapsed - self.t_step >= DISCOVERY_S
 
     def _configure(self, elapsed: float, touching: bool) -> bool:
         from lifecycle_msgs.msg import Transition
@@ -147,13 +125,11 @@ class WipeOperator:
         return touching and elapsed - self.t_step >= SETTLE_S
 
     def _script(self, elapsed: float, touching: bool) -> bool:
-        if not self.script_told:
-            self.script_told = True
-            try:
-                self.script.stdin.write(b'go\n')
-                self.script.stdin.close()
-            except BrokenPipeError:  # it ended already: its code says why, below
-                pass
+        if self.script is None:
+            with open(self.log_path, 'wb') as log:
+                self.script = subprocess.Popen([sys.executable, '-m', *self.script_cmd],
+                                               env=self.env, stdout=log,
+                                               stderr=subprocess.STDOUT)
         code = self.script.poll()
         if code is None:
             return False

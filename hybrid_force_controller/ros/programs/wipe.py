@@ -24,6 +24,7 @@ WIPE_SIM_ARGS = ['-p', f'sensor_offset:={SENSOR_BIAS_N}']
 WIPE_CONTROLLER_ARGS = ['-p', 'autostart:=false', '-p', 'ref_amplitude:=[0.0, 0.0, 0.0]']
 SETTLE_S = 1.0  # pressing this long before the path is sent, s
 PRESS_TIMEOUT_S = 30.0  # the demo fails when the tool is not pressing this long after activation
+TOUCH_TOL = 0.5  # pressing: the true force within this fraction of f_d (an untared bias of 2-3 N)
 AFTER_S = 1.0  # recorded after the script is done, s
 
 
@@ -36,7 +37,7 @@ class WipeOperator:
         from lifecycle_msgs.srv import ChangeState
         from std_srvs.srv import Trigger
         self.node, self.tare, self.script_cmd, self.env = node, tare, list(script), env
-        self.touching = False  # the true force is within 20 % of f_d
+        self.touching = False  # the true force is within TOUCH_TOL of f_d
         node.create_subscription(WrenchStamped, 'sim/contact_wrench',
                                  lambda m: self._on_force(m, f_d), 10)
         self.log_path = log_path
@@ -53,7 +54,7 @@ class WipeOperator:
 
     def _on_force(self, msg: Any, f_d: float) -> None:
         f = msg.wrench.force
-        self.touching = abs((f.x * f.x + f.y * f.y + f.z * f.z) ** 0.5 - f_d) <= 0.2 * f_d
+        self.touching = abs((f.x * f.x + f.y * f.y + f.z * f.z) ** 0.5 - f_d) <= TOUCH_TOL * f_d
 
     def poll(self, elapsed: float) -> bool:
         """Advance the steps at recording time ``elapsed`` (s); True when all are done."""

@@ -1,14 +1,14 @@
 """The CDR readers of the 1 kHz inputs agree with rclpy's own serialization."""
 import math
 
-from geometry_msgs.msg import WrenchStamped
-from hybrid_force_controller.ros.common.cdr import (CdrError, read_float64_array, read_joint_state,
-                                                    read_wrench_stamped)
+from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
+from hybrid_force_controller.ros.common.cdr import (CdrError, RawMessage, read_float64_array,
+                                                    read_joint_state, read_wrench_stamped)
 import numpy as np
 import pytest
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
 
 @pytest.mark.parametrize('frame, names', [
@@ -60,3 +60,32 @@ def test_truncated_or_foreign_bytes_are_refused():
     for bad in (raw[:-12], raw[:10], b'', b'\x00\x07\x00\x00' + raw[4:]):
         with pytest.raises(CdrError):
             read_joint_state(bad)
+
+
+@pytest.mark.parametrize('kind, msg_type, field', [
+    ('point_stamped', PointStamped, 'point'), ('vector3_stamped', Vector3Stamped, 'vector')])
+def test_a_stamped_vector_refilled_in_place_is_the_message_rclpy_would_send(kind, msg_type,
+                                                                            field):
+    """The telemetry's ~/x, ~/x_desired, ~/error, ~/surface_normal (telemetry.py)."""
+    template = msg_type()
+    template.header.frame_id = 'panda_link0'
+    raw = RawMessage(kind, template)
+    raw.set_stamp(1_234_567_890_123)
+    raw.arrays[0][:] = (0.1, -2.5, 1e-9)
+    msg = deserialize_message(raw.serialized(), msg_type)
+    v = getattr(msg, field)
+    assert (v.x, v.y, v.z) == (0.1, -2.5, 1e-9)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1234, 567_890_123)
+    assert msg.header.frame_id == 'panda_link0'
+    expected = msg_type()
+    expected.header = msg.header
+    setattr(expected, field, v)
+    assert raw.serialized() == serialize_message(expected)
+
+
+def test_a_float64_refilled_in_place_is_the_message_rclpy_would_send():
+    """~/stiffness_estimate: NaN while unknown, then the estimate."""
+    raw = RawMessage('float64', Float64(data=float('nan')))
+    assert math.isnan(deserialize_message(raw.serialized(), Float64).data)
+    raw.arrays[0][0] = 2741.5
+    assert raw.serialized() == serialize_message(Float64(data=2741.5))

@@ -45,7 +45,7 @@ class WrenchData(NamedTuple):
     force: tuple[float, float, float]
 
 
-_STRUCT = {fmt: struct.Struct(fmt) for fmt in ('<I', '<iI', '<II', '<3d')}
+_STRUCT = {fmt: struct.Struct(fmt) for fmt in ('<I', '<iI', '<II', '<3d', '<d')}
 
 
 class _Reader:
@@ -129,8 +129,9 @@ class RawMessage:
     A serialized message whose stamp and double arrays are refilled in place.
 
     ``kind`` is ``'joint_state'`` (position, velocity, effort), ``'wrench_stamped'`` (force,
-    torque) or ``'float64_array'`` (data); ``template`` is a message of that type with the
-    final names, frame and array sizes. :attr:`arrays` are numpy views into the bytes.
+    torque), ``'point_stamped'`` or ``'vector3_stamped'`` (the point or vector),
+    ``'float64_array'`` (data) or ``'float64'`` (data); ``template`` is a message of that type
+    with the final names, frame and array sizes. :attr:`arrays` are numpy views into the bytes.
     """
 
     def __init__(self, kind: str, template: object) -> None:
@@ -138,7 +139,7 @@ class RawMessage:
         self.buf = bytearray(serialize_message(template))
         r = _Reader(bytes(self.buf))
         spans = _SPANS[kind](r)
-        self.has_stamp = kind != 'float64_array'
+        self.has_stamp = kind not in _UNSTAMPED
         self.arrays = [np.frombuffer(self.buf, '<f8', n, pos) for pos, n in spans]
 
     def set_stamp(self, t_ns: int) -> None:
@@ -184,15 +185,29 @@ def _float64_array_spans(r: _Reader) -> list[tuple[int, int]]:
     return _double_spans(r, 1)
 
 
+def _stamped_vector_spans(r: _Reader) -> list[tuple[int, int]]:
+    """PointStamped and Vector3Stamped: a header, then three doubles."""
+    r.stamp()
+    r.string()
+    r._take('<3d', 8)
+    return [(r.pos - 24, 3)]
+
+
+def _float64_spans(r: _Reader) -> list[tuple[int, int]]:
+    r._take('<d', 8)
+    return [(r.pos - 8, 1)]
+
+
 _SPANS = {'joint_state': _joint_state_spans, 'wrench_stamped': _wrench_spans,
-          'float64_array': _float64_array_spans}
+          'float64_array': _float64_array_spans, 'point_stamped': _stamped_vector_spans,
+          'vector3_stamped': _stamped_vector_spans, 'float64': _float64_spans}
+_UNSTAMPED = ('float64_array', 'float64')
 
 
 def double_spans(kind: str, buf: bytes) -> list[tuple[int, int]]:
     """
     Return (byte offset, count) of each double array of a serialized message.
 
-    ``kind`` as for :class:`RawMessage`: ``joint_state`` (position, velocity, effort),
-    ``wrench_stamped`` (force, torque) or ``float64_array``. Raises :class:`CdrError`.
+    ``kind`` as for :class:`RawMessage`. Raises :class:`CdrError`.
     """
     return _SPANS[kind](_Reader(bytes(buf)))

@@ -13,6 +13,7 @@ estimate n_hat (core/runtime/surface.py). The effort and theta_hat data live in
 from __future__ import annotations
 
 import array
+import math
 from typing import Any, Sequence
 
 from geometry_msgs.msg import PointStamped, Vector3Stamped, WrenchStamped
@@ -55,47 +56,54 @@ class EffortOutput:
 
 
 class ControllerOutputs:
-    """Telemetry publishers and reusable messages of one controller node."""
+    """
+    Telemetry publishers and their messages, kept serialized and refilled in place (cdr.py).
+
+    Publishing bytes skips rclpy's conversion of a Python message, about a third of the
+    telemetry's cost (docs/results.md, section 12).
+    """
+
+    TOPICS = (('~/x', PointStamped, 'point_stamped'),
+              ('~/x_desired', PointStamped, 'point_stamped'),
+              ('~/wrench', WrenchStamped, 'wrench_stamped'),
+              ('~/wrench_desired', WrenchStamped, 'wrench_stamped'),
+              ('~/error', Vector3Stamped, 'vector3_stamped'),
+              ('~/surface_normal', Vector3Stamped, 'vector3_stamped'))
 
     def __init__(self, node: Any, base_frame: str, theta_names: Sequence[str]) -> None:
         self.node = node
         p = len(theta_names)
         layout = MultiArrayLayout(dim=[MultiArrayDimension(label=','.join(theta_names),
                                                            size=p, stride=p)])
-        self.theta_msg, self.theta_view = _buffer_msg(p, layout)
-        self.x, self.x_d = PointStamped(), PointStamped()
-        self.f, self.f_d = WrenchStamped(), WrenchStamped()
-        self.e, self.n = Vector3Stamped(), Vector3Stamped()
-        self.stamped = (self.x, self.x_d, self.f, self.f_d, self.e, self.n)
-        for msg in self.stamped:
-            msg.header.frame_id = base_frame
-        self.vectors = (self.x.point, self.x_d.point, self.f.wrench.force,
-                        self.f_d.wrench.force, self.e.vector)
-        topics = (('~/x', self.x), ('~/x_desired', self.x_d), ('~/wrench', self.f),
-                  ('~/wrench_desired', self.f_d), ('~/error', self.e),
-                  ('~/surface_normal', self.n))
-        self.telemetry = [(node.create_publisher(type(m), t, TELEMETRY_QOS), m)
-                          for t, m in topics]
+        self.telemetry: list[tuple[Any, RawMessage]] = []
+        for topic, msg_type, kind in self.TOPICS:
+            template = msg_type()
+            template.header.frame_id = base_frame
+            self.telemetry.append((node.create_publisher(msg_type, topic, TELEMETRY_QOS),
+                                   RawMessage(kind, template)))
+        self.stamped = [m for _, m in self.telemetry]
+        self.vectors = [m.arrays[0] for m in self.stamped]  # x, x_d, f, f_d, e, n
+        theta = RawMessage('float64_array', _buffer_msg(p, layout)[0])
+        self.theta_view = theta.arrays[0]
         self.telemetry.append((node.create_publisher(Float64MultiArray, '~/theta_hat',
-                                                     TELEMETRY_QOS), self.theta_msg))
-        self.k_msg = Float64()  # the stiffness estimate, N/m (NaN while unknown)
+                                                     TELEMETRY_QOS), theta))
+        k = RawMessage('float64', Float64(data=math.nan))
+        self.k_view = k.arrays[0]  # the stiffness estimate, N/m (NaN while unknown)
         self.telemetry.append((node.create_publisher(Float64, '~/stiffness_estimate',
-                                                     TELEMETRY_QOS), self.k_msg))
+                                                     TELEMETRY_QOS), k))
 
     def publish_telemetry(self, out: Any, stamp_ns: int) -> None:
-        """Publish the tick's positions, forces, error and theta_hat (base frame)."""
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        """Publish the tick's positions, forces, error, normal and theta_hat (base frame)."""
         for msg in self.stamped:
-            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            msg.set_stamp(stamp_ns)
         for target, v in zip(self.vectors, (out.x_W, out.x_d_W, out.f_W, out.f_d_W, out.e_W)):
-            target.x, target.y, target.z = float(v[0]), float(v[1]), float(v[2])
+            target[:] = v
         if out.n_W is not None:
-            v, target = out.n_W, self.n.vector
-            target.x, target.y, target.z = float(v[0]), float(v[1]), float(v[2])
+            self.vectors[5][:] = out.n_W
         self.theta_view[:] = out.theta_hat
-        self.k_msg.data = float(out.k_hat)
+        self.k_view[0] = out.k_hat
         for publisher, msg in self.telemetry:
-            publisher.publish(msg)
+            publisher.publish(msg.serialized())
 
     def destroy(self) -> None:
         """Destroy every publisher (lifecycle cleanup)."""

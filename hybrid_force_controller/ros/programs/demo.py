@@ -41,13 +41,12 @@ import json
 import os
 from pathlib import Path
 import shutil
-import signal
 import subprocess
 import sys
 import time
 from typing import Any, Sequence
 
-from .launch import find_config, PAPER_MASSES_OFF, PKG
+from .launch import find_config, PAPER_MASSES_OFF, PKG, stop_processes
 from .surfaces import surface_settings, SURFACES, SurfaceSettings, TOLD_N
 
 #: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
@@ -244,14 +243,7 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, fl
         print(f'\ndemo: interrupted; the partial bag is {bag}', file=sys.stderr)
         return 0, mu, tool_mass
     finally:
-        for p in procs:
-            p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_processes(procs)
     return None, mu, tool_mass
 
 

@@ -16,7 +16,6 @@ import argparse
 import json
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import tempfile
@@ -71,6 +70,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from std_msgs.msg import Float64MultiArray
     from . import demo
+    from .launch import stop_processes
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     cfg = argparse.Namespace(arm='panda', physics='mujoco', friction=None, tool_mass=None)
     ros_args, mu, _ = demo._scenario_args(cfg)
@@ -98,14 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(json.dumps({'probe': args.probe, **_gaps(stamps, starts, warm_up_end)}))
         return 0
     finally:
-        for p in procs:
-            p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_processes(procs)
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -2,9 +2,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+import signal
+import subprocess
 import sys
+from typing import Iterable
 
-__all__ = ['PAPER_MASSES_OFF', 'PKG', 'find_config']
+__all__ = ['PAPER_MASSES_OFF', 'PKG', 'find_config', 'stop_processes']
 
 PKG = 'hybrid_force_controller'
 # the sim's link masses for the paper's arm in demo and bench: 50 % off the URDF's [1.3, 0.9],
@@ -26,3 +29,17 @@ def find_config(name: str = 'params.yaml') -> Path:
         if path.is_file():
             return path
     raise FileNotFoundError(f'config/{name} not found in {[str(c) for c in candidates]}')
+
+
+def stop_processes(procs: Iterable[subprocess.Popen], timeout: float = 30.0) -> None:
+    """Stop nodes started as processes, by pid: SIGINT to each, then wait; kill what stays."""
+    procs = list(procs)
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()

@@ -26,7 +26,6 @@ import json
 import math
 import os
 from pathlib import Path
-import signal
 import subprocess
 import sys
 import time
@@ -34,7 +33,7 @@ from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
-from .launch import find_config, PKG
+from .launch import find_config, PKG, stop_processes
 
 __all__ = ['SURFACES', 'SurfaceSettings', 'issue_figures', 'main', 'run_surface',
            'square_path', 'surface_settings']
@@ -104,18 +103,6 @@ def _start(settings: SurfaceSettings, friction: float, env: dict[str, str],
         with open(log_dir / f'{name}.log', 'wb') as log:
             procs.append(subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT))
     return procs
-
-
-def _stop(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    for p in procs:
-        try:
-            p.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 class _User:
@@ -198,7 +185,7 @@ def run_surface(surface: str, out: Path, friction: float = 0.3, estimation: bool
         finally:
             user.close()
     finally:
-        _stop(procs)
+        stop_processes(procs)
     from ...tools.report import main as report_main
     if report_main([str(out / 'bag'), '--out', str(out / 'report'), '--t-start', '0']) != 0:
         raise RuntimeError(f'report failed on {out / "bag"}')

@@ -186,7 +186,7 @@ def _float64_array_spans(r: _Reader) -> list[tuple[int, int]]:
 
 
 def _stamped_vector_spans(r: _Reader) -> list[tuple[int, int]]:
-    """PointStamped and Vector3Stamped: a header, then three doubles."""
+    """Return the span of a PointStamped's or Vector3Stamped's three doubles (after a header)."""
     r.stamp()
     r.string()
     r._take('<3d', 8)

@@ -69,15 +69,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     import rclpy
     from std_msgs.msg import Float64MultiArray
-    from . import demo
+    from .demo import _scenario_args, _start_nodes
     from .launch import stop_processes
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     cfg = argparse.Namespace(arm='panda', physics='mujoco', friction=None, tool_mass=None)
-    ros_args, mu, _ = demo._scenario_args(cfg)
+    ros_args, mu, _ = _scenario_args(cfg)
     extra = {k: [a for p in getattr(args, k) for a in ('-p', p)] for k in ('sim', 'controller')}
     log_dir = Path(tempfile.mkdtemp(prefix='join_stall_'))
-    procs = demo._start_nodes(ros_args, mu, False, dict(os.environ), log_dir, extra['sim'],
-                              extra['controller'])
+    procs = _start_nodes(ros_args, mu, False, dict(os.environ), log_dir, extra['sim'],
+                         extra['controller'])
     rclpy.init()
     node = rclpy.create_node('join_stall_monitor')
     stamps: list[float] = []

@@ -19,7 +19,10 @@ __all__ = ['WIPE_CONTROLLER_ARGS', 'WIPE_SIM_ARGS', 'WipeOperator']
 
 CONTROLLER = 'hybrid_force_controller'
 SENSOR_BIAS_N = '[1.5, -1.0, 2.5]'  # the sim's sensor reads this much more, N, sensor frame
-WIPE_SIM_ARGS = ['-p', f'sensor_offset:={SENSOR_BIAS_N}']
+# a real sensor's noise too (0.02 N, a fixed seed): a noiseless biased reading is bit-identical
+# while the sim holds the arm, and the controller's frozen-sensor check rightly took it for a
+# dead sensor at every activation
+WIPE_SIM_ARGS = ['-p', f'sensor_offset:={SENSOR_BIAS_N}', '-p', 'noise_sigma:=0.02']
 # unconfigured until the operator's program says; no sine: hold where the tool is until the path
 WIPE_CONTROLLER_ARGS = ['-p', 'autostart:=false', '-p', 'ref_amplitude:=[0.0, 0.0, 0.0]']
 SETTLE_S = 1.0  # pressing this long before the path is sent, s

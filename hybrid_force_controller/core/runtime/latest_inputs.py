@@ -40,7 +40,8 @@ class LatestInputs:
         self.model, self.counters = model, counters
         self.last_fault = ''
         self.gate = WrenchGate(model.model.existFrame, 0.0, 0.0)
-        self.clocks = {'joint_state': SenderClock('joint state'), 'wrench': SenderClock('wrench')}
+        self._js_clock, self._wrench_clock = SenderClock('joint state'), SenderClock('wrench')
+        self.clocks = {'joint_state': self._js_clock, 'wrench': self._wrench_clock}
         self.filter = LowPassFilter(rt.force_filter_hz)
         self.state: JointSample | None = None
         self.wrench: WrenchSample | None = None
@@ -89,7 +90,7 @@ class LatestInputs:
         """Store a joint state mapped by name (reordered and extra joints are fine)."""
         try:
             if t_recv is not None:
-                t = self.clocks['joint_state'].receive(t, t_recv)
+                t = self._js_clock.receive(t, t_recv)
             self.state = self._joints.sample(names, q, qdot, t, self.state)
         except ImplausibleStamp as exc:
             self._fault('joint_state_clock_implausible', exc)
@@ -107,7 +108,7 @@ class LatestInputs:
             force = (force[0] - ox, force[1] - oy, force[2] - oz)
         try:
             if t_recv is not None:
-                t = self.clocks['wrench'].receive(t, t_recv)
+                t = self._wrench_clock.receive(t, t_recv)
             sample = self.gate.check(frame_id, force, t)
         except ImplausibleStamp as exc:
             self._fault('wrench_clock_implausible', exc)

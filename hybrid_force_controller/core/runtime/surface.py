@@ -61,6 +61,11 @@ _COS_MAX = math.cos(MAX_TILT_RAD)
 _ZERO = (0.0, 0.0, 0.0)
 
 
+def _dot(a: Sequence[float], b: Sequence[float]) -> float:
+    """Return the dot product of two 3-tuples (floats: the tick's small vectors)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
 class NormalStatus(NamedTuple):
     """What /diagnostics reports of the normal (base frame)."""
 
@@ -112,10 +117,7 @@ class SurfaceNormal:
             self._n_given = self._n_est = self.n  # the n_W given out (_turn), n_hat seen
         self.enabled = True
         self._still_speed2 = (STILL_FRACTION * cfg.speed_floor) ** 2
-        n, q = self.n, self._n_p
-        kappa = 1.0 / (n[0] * q[0] + n[1] * q[1] + n[2] * q[2])
-        self._kq = tuple(kappa * v for v in q)
-        self._moving = MovingNormal(self.n, _ZERO, self._n_p, kappa,
+        self._moving = MovingNormal(self.n, _ZERO, self._n_p, self._kappa(self.n),
                                     None if self._full else self._ax)
         ctrl.set_normal(self._moving)
         motion.set_normal(self.n_W)
@@ -136,8 +138,7 @@ class SurfaceNormal:
         n = est.n_hat
         if n is not self._n_est:  # it turned (a new tuple)
             self._n_est = n
-            q = self._n_p
-            self.limited = n[0] * q[0] + n[1] * q[1] + n[2] * q[2] < _COS_MAX
+            self.limited = _dot(n, self._n_p) < _COS_MAX
             self._turn(self._limit(n) if self.limited else n, dt, motion)
         elif self._moving.ndot is not _ZERO:
             self._moving.ndot = _ZERO
@@ -153,9 +154,8 @@ class SurfaceNormal:
     def _turn(self, n: tuple, dt: float, motion: Motion) -> None:
         """Hand the law the new normal ``n`` and its rate; n_W and the motion once it moved."""
         n_old, self.n = self.n, n
-        q, mn, rate = self._n_p, self._moving, 1.0 / dt
-        mn.kappa = kappa = 1.0 / (n[0] * q[0] + n[1] * q[1] + n[2] * q[2])
-        self._kq = (kappa * q[0], kappa * q[1], kappa * q[2])
+        mn, rate = self._moving, 1.0 / dt
+        mn.kappa = self._kappa(n)
         mn.n, mn.ndot = n, ((n[0] - n_old[0]) * rate, (n[1] - n_old[1]) * rate,
                             (n[2] - n_old[2]) * rate)
         m = self._n_given
@@ -163,6 +163,13 @@ class SurfaceNormal:
         if d0 * d0 + d1 * d1 + d2 * d2 > PROPAGATE_RAD ** 2:  # numpy costs: not every time
             self.n_W, self._n_given = np.array(n), n
             motion.set_normal(self.n_W)
+
+    def _kappa(self, n: tuple) -> float:
+        """Return kappa = 1 / (n_hat^T n_p) of (M1) for ``n``, and keep kappa n_p for project."""
+        q = self._n_p
+        kappa = 1.0 / _dot(n, q)
+        self._kq = (kappa * q[0], kappa * q[1], kappa * q[2])
+        return kappa
 
     def _in_plane(self, f: list) -> list:
         """Zero the components of ``f`` outside the task space (a planar arm)."""
@@ -178,7 +185,7 @@ class SurfaceNormal:
     def _limit(self, n: tuple) -> tuple:
         """Return ``n``, more than MAX_TILT_RAD from the told n, held on that cone."""
         p = self._n_p
-        c = n[0] * p[0] + n[1] * p[1] + n[2] * p[2]
+        c = _dot(n, p)
         e = [a - c * b for a, b in zip(n, p)]  # across n_p, towards n
         s = math.sqrt(sum(a * a for a in e)) or 1.0
         sin_max = math.sin(MAX_TILT_RAD)
@@ -208,8 +215,8 @@ class SurfaceNormal:
 
     def status(self) -> NormalStatus:
         """Return the snapshot /diagnostics reports."""
-        est, n, q = self.estimator, self.n, self._n_p
-        cos = n[0] * q[0] + n[1] * q[1] + n[2] * q[2]
+        est, n = self.estimator, self.n
+        cos = _dot(n, self._n_p)
         angle = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
         return NormalStatus(self.enabled, n, angle, est.mu_hat,
                             est.state if self.enabled else 'off', est.samples_used,

@@ -170,13 +170,6 @@ def _joint_state_spans(r: _Reader) -> list[tuple[int, int]]:
     return _double_spans(r, 3)
 
 
-def _wrench_spans(r: _Reader) -> list[tuple[int, int]]:
-    r.stamp()
-    r.string()
-    r._take('<3d', 8)
-    return [(r.pos - 24, 3), (r.pos, 3)]
-
-
 def _float64_array_spans(r: _Reader) -> list[tuple[int, int]]:
     for _ in range(r.uint32()):
         r.string()
@@ -191,6 +184,11 @@ def _stamped_vector_spans(r: _Reader) -> list[tuple[int, int]]:
     r.string()
     r._take('<3d', 8)
     return [(r.pos - 24, 3)]
+
+
+def _wrench_spans(r: _Reader) -> list[tuple[int, int]]:
+    """WrenchStamped: the force as a stamped vector, the torque right after it."""
+    return [*_stamped_vector_spans(r), (r.pos, 3)]
 
 
 def _float64_spans(r: _Reader) -> list[tuple[int, int]]:

@@ -23,7 +23,7 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -36,6 +36,22 @@ from ...tools.offline_bench import offline_figures
 __all__ = ['main', 'ros_loop_figures']
 
 WARM_UP_TIMEOUT_S = 90.0
+
+
+def wait_new_report(get: Callable[[str], tuple[float, dict[str, str]]], name: str,
+                    after: float, timeout: float = 10.0) -> dict[str, str]:
+    """
+    Wait for a /diagnostics report of ``name`` received after ``after`` (monotonic s).
+
+    ``get(name)`` returns (reception time, values) of the newest report. Raises TimeoutError.
+    """
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        t, values = get(name)
+        if t > after:
+            return values
+        time.sleep(0.05)
+    raise TimeoutError(f'no /diagnostics from {name} within {timeout} s')
 
 
 class _Diagnostics:
@@ -100,13 +116,7 @@ class _Diagnostics:
             return self.received.get(hardware_id, 0.0), self.latest.get(hardware_id, {})
 
     def wait_new(self, hardware_id: str, after: float, timeout: float = 10.0) -> dict[str, str]:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            t, values = self.get(hardware_id)
-            if t > after:
-                return values
-            time.sleep(0.05)
-        raise TimeoutError(f'no /diagnostics from {hardware_id} within {timeout} s')
+        return wait_new_report(self.get, hardware_id, after, timeout)
 
     def close(self) -> None:
         import rclpy  # the context first: spin() ends before anything is destroyed

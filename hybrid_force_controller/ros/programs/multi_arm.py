@@ -65,13 +65,8 @@ class _Watcher:
             return self.latest.get(name, (0.0, {}))
 
     def wait_new(self, name: str, timeout: float = 10.0) -> dict[str, str]:
-        after, deadline = time.monotonic(), time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            t, values = self.get(name)
-            if t > after:
-                return values
-            time.sleep(0.05)
-        raise TimeoutError(f'no /diagnostics from {name} within {timeout} s')
+        from .bench import wait_new_report
+        return wait_new_report(self.get, name, time.monotonic(), timeout)
 
     def close(self) -> None:
         import rclpy

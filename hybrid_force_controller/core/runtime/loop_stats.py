@@ -61,6 +61,7 @@ class HoldStats:
 
     BIN_S = 1e-5
     N_BINS = 10000
+    _MIDDLES = np.arange(N_BINS) + 0.5  # each bin's middle, in bins
 
     def __init__(self, kinds: tuple[str, ...]) -> None:
         self.kinds = kinds
@@ -119,7 +120,7 @@ class HoldStats:
             if count:
                 p999 = min((int(np.searchsorted(np.cumsum(h), 0.999 * count)) + 1)
                            * self.BIN_S, maxima[kind]) * 1e3
-                mean = float(h @ (np.arange(self.N_BINS) + 0.5)) / count * self.BIN_S * 1e3
+                mean = float(h @ self._MIDDLES) / count * self.BIN_S * 1e3
             out.update({f'{kind}_count': float(count), f'{kind}_max_ms': maxima[kind] * 1e3,
                         f'{kind}_p999_ms': p999, f'{kind}_mean_ms': mean})
         return out

@@ -51,8 +51,6 @@ class WipeOperator:
         self.future = None
         self.t_step = 0.0
         self.script: subprocess.Popen | None = None
-        self.tare_message = ''
-        self.script_code: int | None = None
         self.t_pressing: float | None = None  # when the settle step began
 
     def _on_force(self, msg: Any, f_d: float) -> None:
@@ -114,7 +112,6 @@ class WipeOperator:
         answer = self.future.result()
         if not answer.success:
             raise RuntimeError(f'tare: {answer.message}')
-        self.tare_message = answer.message
         print(f'\n  tare: {answer.message}')
         return True
 
@@ -137,7 +134,6 @@ class WipeOperator:
         code = self.script.poll()
         if code is None:
             return False
-        self.script_code = code
         if code != 0:
             raise RuntimeError(f'the path script ended with {code}; see {self.log_path}')
         return True

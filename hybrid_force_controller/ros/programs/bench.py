@@ -27,7 +27,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .launch import find_config, PAPER_MASSES_OFF, PKG
+from .launch import cell_env, find_config, PAPER_MASSES_OFF, PKG
 from .load import CpuMeter, ThreadCpuMeter
 from .run_faults import freeze, param_storm
 from .tracking import TrackingMeter
@@ -208,7 +208,7 @@ def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
 
 
 def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    env = cell_env(dict(os.environ, ROS_DOMAIN_ID=str(domain)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     diag = _Diagnostics(domain, *cfg['n_f_d'])
     procs: dict[str, subprocess.Popen] = {}

@@ -46,7 +46,7 @@ import sys
 import time
 from typing import Any, Sequence
 
-from .launch import find_config, PAPER_MASSES_OFF, PKG, stop_processes
+from .launch import cell_env, find_config, PAPER_MASSES_OFF, PKG, stop_processes, use_loopback_dds
 from .surfaces import surface_settings, SURFACES, SurfaceSettings, TOLD_N
 
 #: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
@@ -229,7 +229,7 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, fl
     env = dict(os.environ)
     extra = {who: [a for p in getattr(args, f'{who}_param') for a in ('-p', p)]
              for who in ('sim', 'controller')}
-    procs = _start_nodes(ros_args, mu, args.lockstep, env, args.out,
+    procs = _start_nodes(ros_args, mu, args.lockstep, cell_env(env), args.out,
                          _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []) + [*shape.sim_args]
                          + extra['sim'],
                          (WIPE_CONTROLLER_ARGS if wipe else []) + [*shape.ctrl_args]
@@ -266,13 +266,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', '37')
+    profile = use_loopback_dds()
     bag, report_dir = args.out / 'bag', args.out / 'report'
     shutil.rmtree(bag, ignore_errors=True)
     args.out.mkdir(parents=True, exist_ok=True)
     mode = 'lockstep' if args.lockstep else 'real_time'
     what = f'{args.duration:.0f} s' if args.task == 'sine' else f'task {args.task}'
     print(f'demo: {args.arm} arm on {args.physics} physics, {what}, '
-          f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}')
+          f'{mode.replace("_", " ")}, ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]}; '
+          f'Fast DDS profile of the recorder and the script: {profile or "the defaults"}')
     code, mu, tool_mass = _run(args, bag, mode)
     if code is not None:  # interrupted (0: the partial bag is kept), or failed (2)
         return code

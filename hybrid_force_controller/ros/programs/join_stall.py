@@ -43,6 +43,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--warm-up', type=float, default=12.0, help='s before the first start')
     ap.add_argument('--sim', nargs='*', default=[], metavar='NAME:=VALUE')
     ap.add_argument('--controller', nargs='*', default=[], metavar='NAME:=VALUE')
+    ap.add_argument('--loopback-probes', action='store_true',
+                    help='start the probes with config/fastdds_loopback.xml (the cell and '
+                    "this monitor keep the caller's DDS settings)")
     return ap
 
 
@@ -70,13 +73,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from std_msgs.msg import Float64MultiArray
     from .demo import _scenario_args, _start_nodes
-    from .launch import stop_processes
+    from .launch import cell_env, find_config, LOOPBACK_PROFILE, PROFILE_VAR, stop_processes
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     cfg = argparse.Namespace(arm='panda', physics='mujoco', friction=None, tool_mass=None)
     ros_args, mu, _ = _scenario_args(cfg)
     extra = {k: [a for p in getattr(args, k) for a in ('-p', p)] for k in ('sim', 'controller')}
     log_dir = Path(tempfile.mkdtemp(prefix='join_stall_'))
-    procs = _start_nodes(ros_args, mu, False, dict(os.environ), log_dir, extra['sim'],
+    probe_env = dict(os.environ)
+    if args.loopback_probes:
+        probe_env[PROFILE_VAR] = str(find_config(LOOPBACK_PROFILE))
+    procs = _start_nodes(ros_args, mu, False, cell_env(), log_dir, extra['sim'],
                          extra['controller'])
     rclpy.init()
     node = rclpy.create_node('join_stall_monitor')
@@ -89,13 +95,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         for _ in range(args.starts):
             starts.append(time.monotonic())
             probe = subprocess.Popen([sys.executable, '-c', PROBES[args.probe]],
-                                     stdout=subprocess.DEVNULL)
+                                     env=probe_env, stdout=subprocess.DEVNULL)
             _spin_for(node, WINDOW_S)
             probe.wait(timeout=30)
         if any(p.poll() is not None for p in procs) or len(stamps) < 2:
             print(f'join_stall: a node ended or sent nothing; logs in {log_dir}', file=sys.stderr)
             return 2
-        print(json.dumps({'probe': args.probe, **_gaps(stamps, starts, warm_up_end)}))
+        print(json.dumps({'probe': args.probe, 'loopback_probes': args.loopback_probes,
+                          **_gaps(stamps, starts, warm_up_end)}))
         return 0
     finally:
         stop_processes(procs)

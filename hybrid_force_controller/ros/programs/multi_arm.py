@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .launch import cell_env
 from .load import CpuMeter
 
 __all__ = ['multi_arm_figures']
@@ -127,7 +128,7 @@ def multi_arm_figures(arms: int, duration_s: float, ros_args: Sequence[str],
     """Run ``arms`` pairs for ``duration_s`` s of measurement; the figures per arm (docstring)."""
     from .bench import _stop
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38')) if domain is None else domain
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    env = cell_env(dict(os.environ, ROS_DOMAIN_ID=str(domain)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     procs: dict = {}
     with tempfile.TemporaryDirectory(prefix='bench_arms_') as tmp:

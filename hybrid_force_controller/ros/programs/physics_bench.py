@@ -22,7 +22,7 @@ import time
 from typing import Any, Sequence
 
 from .demo import _scenario_args
-from .launch import PKG
+from .launch import cell_env, PKG
 from .load import CpuMeter
 
 __all__ = ['main']
@@ -32,7 +32,7 @@ def _loop(physics: str, arm: str, friction: float | None, domain: int,
           log_dir: Path) -> dict[str, subprocess.Popen]:
     ns = argparse.Namespace(arm=arm, physics=physics, friction=friction, tool_mass=None)
     ros_args, mu, _ = _scenario_args(ns)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+    env = dict(cell_env(), ROS_DOMAIN_ID=str(domain),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     procs = {}
     for name, module, extra in (('sim', 'sim_node.sim_node', ['-p', f'surface_friction:={mu!r}']),

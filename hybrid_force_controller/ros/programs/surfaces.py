@@ -33,7 +33,7 @@ from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
-from .launch import find_config, PKG, stop_processes
+from .launch import cell_env, find_config, PKG, stop_processes, use_loopback_dds
 
 __all__ = ['SURFACES', 'SurfaceSettings', 'issue_figures', 'main', 'run_surface',
            'square_path', 'surface_settings']
@@ -170,7 +170,8 @@ def run_surface(surface: str, out: Path, friction: float = 0.3, estimation: bool
     out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    procs = _start(surface_settings(surface, estimation, friction_removal), friction, env, out)
+    procs = _start(surface_settings(surface, estimation, friction_removal), friction,
+                   cell_env(env), out)
     try:
         user = _User(out / 'bag')
         try:
@@ -311,6 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                        't from sliding begins [s]'))
         return 0
     os.environ.setdefault('ROS_DOMAIN_ID', '37')
+    use_loopback_dds()
     code = 0
     for surface in args.surface or ['tilted', 'tilted_y', 'cylinder', 'sphere']:
         for k in range(args.runs):

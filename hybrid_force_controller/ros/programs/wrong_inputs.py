@@ -33,7 +33,7 @@ import numpy as np
 
 from .bench import _Diagnostics, _start, _stop, WARM_UP_TIMEOUT_S
 from .injector import Injector
-from .launch import find_config, PKG
+from .launch import cell_env, find_config, PKG, use_loopback_dds
 
 __all__ = ['CASES', 'main', 'run_case']
 
@@ -91,7 +91,7 @@ def _play(case: str, play: Play | None, injector: Injector, diag: _Diagnostics,
 def run_case(case: str, domain: int, log_dir: Path, window_s: float = 10.0) -> dict[str, Any]:
     """Run one case once (module docstring) and return its figures."""
     (js_offset, wrench_offset), play = CASES[case]
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    env = cell_env(dict(os.environ, ROS_DOMAIN_ID=str(domain)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ros_args = ['--ros-args', '--params-file', str(find_config()), '-p', 'masses:=[0.65, 1.35]']
     diag = _Diagnostics(domain)
@@ -151,6 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--window', type=float, default=10.0, help='measured window, s')
     args = ap.parse_args(argv)
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38'))
+    use_loopback_dds()
     figures: dict[str, Any] = {}
     try:
         with tempfile.TemporaryDirectory(prefix='wrong_inputs_') as tmp:

@@ -7,6 +7,7 @@ domain of their own set ROS_DOMAIN_ID themselves (or pass domain_id to rclpy.ini
 import os
 import signal
 
+from hybrid_force_controller.ros.programs.launch import use_loopback_dds
 import pytest
 
 
@@ -18,6 +19,12 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
+# The test process and the observers it starts (recorders, programs) on UDP loopback, with no
+# shared-memory port (config/fastdds_loopback.xml); the sims and controllers keep shared memory
+# (ros_helpers.node_env). Fast DDS's port health check stalled the cell 333 ms at random when a
+# reader joined it (docs/results.md, section 13), the suite's last flake. A caller's own
+# FASTRTPS_DEFAULT_PROFILES_FILE is kept.
+use_loopback_dds()
 
 import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any test module loads)
 

@@ -30,10 +30,15 @@ import threading
 import time
 from typing import Any, Callable, Iterable, Sequence
 
+from hybrid_force_controller.ros.programs.launch import cell_env
+
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS_FILE = ROOT / 'config' / 'params.yaml'
 WALL_TIMEOUT = 120.0  # only against hangs
+CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller.controller_node'
+SIM_MODULE = 'sim_node.sim_node'
+CELL_MODULES = {CONTROLLER_MODULE, SIM_MODULE}  # started by node_env(cell=True)
 
 BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID', '42'))
 # one domain per test module (offsets from BASE_DOMAIN); collisions are visible here
@@ -45,7 +50,7 @@ _DOMAIN_OFFSETS = {
     'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'sim_watchdog': 21,
     'wrong_inputs': 22, 'path_ros': 23, 'task_interface': 24, 'contact_normal': 25,
     'surface_normal_ros': 26,
-    'mujoco_ros': 30,
+    'mujoco_ros': 30, 'dds_profile': 31,
 }
 
 
@@ -54,9 +59,16 @@ def domain_id(name: str) -> int:
     return (BASE_DOMAIN + _DOMAIN_OFFSETS[name]) % 233
 
 
-def node_env(domain: int, **extra: str) -> dict[str, str]:
-    """Environment of a node process: its domain, DDS on localhost, unbuffered logs."""
-    return dict(os.environ, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain),
+def node_env(domain: int, cell: bool = False, **extra: str) -> dict[str, str]:
+    """
+    Environment of a node process: its domain, DDS on localhost, unbuffered logs.
+
+    An observer (a recorder, a program, a script: ``cell`` false) keeps the suite's loopback
+    Fast DDS profile (conftest.py); the sim and the controller (``cell``) get the caller's
+    settings, shared memory between them, as the programs start them (launch.cell_env).
+    """
+    base = cell_env() if cell else os.environ
+    return dict(base, PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(domain),
                 ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1',
                 RCUTILS_LOGGING_BUFFERED_STREAM='0', **extra)
 
@@ -92,7 +104,8 @@ class NodeProcess:
         with open(self.log_path, 'a') as log:
             log.write(f'\n===== start {self.starts}: {" ".join(cmd)}\n')
             log.flush()
-            self.proc = subprocess.Popen(cmd, cwd=self.cwd, env=self.env or node_env(self.domain),
+            env = self.env or node_env(self.domain, cell=self.module in CELL_MODULES)
+            self.proc = subprocess.Popen(cmd, cwd=self.cwd, env=env,
                                          stdout=log, stderr=subprocess.STDOUT)
         return self
 
@@ -363,8 +376,6 @@ class ForceLog:
         return (np.array([t for t, _ in pairs]), np.array([f for _, f in pairs]))
 
 
-CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller.controller_node'
-SIM_MODULE = 'sim_node.sim_node'
 MASSES_OFF = ('-p', 'masses:=[0.65, 1.35]')
 
 

@@ -36,7 +36,8 @@ import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any t
 OFFLINE_MODULES = {
     'test_analysis', 'test_cdr', 'test_closed_loop_offline', 'test_control_law', 'test_engine',
     'test_filters_env', 'test_flake8', 'test_force_target_and_tare', 'test_input_plausibility',
-    'test_layers', 'test_loop_stats', 'test_margin', 'test_model_oracle', 'test_moving_normal',
+    'test_layers', 'test_loop_stats', 'test_margin', 'test_model_construction',
+    'test_model_oracle', 'test_moving_normal',
     'test_mujoco_demo_args', 'test_mujoco_plant', 'test_normal_closed_loop',
     'test_normal_estimate', 'test_params', 'test_path', 'test_path_runtime',
     'test_pep257', 'test_recovery', 'test_report', 'test_report_normal', 'test_report_path',

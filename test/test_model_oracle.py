@@ -7,8 +7,8 @@ Oracle tests of ``hybrid_force_controller.core.model.robot_model`` (pinocchio pa
   theta, RNEA / CRBA / Coriolis-matrix consistency) on the 2-link arm and on a 3-DOF
   spatial arm with a full rotational inertia tensor (``test/three_link_spatial.urdf``).
 * The printed forms of (32), (33), (35), (36) disagree with the model (errata are real).
-* Construction: a redundant planar arm, too few joints, base link, unknown end-effector link,
-  missing file.
+
+Construction and its errors: test_model_construction.py.
 
 [1] Jafari et al., "An Adaptive Hybrid Force/Motion Control Design for Robot Manipulators
 Interacting in Constrained Motion with Unknown Non-Rigid Environments".
@@ -19,8 +19,7 @@ import importlib.util
 from pathlib import Path
 import sys
 
-from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
-                                                            RobotModel)
+from hybrid_force_controller.core.model.robot_model import ModelError, RobotModel
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -28,7 +27,6 @@ import pytest
 
 TEST_DIR = Path(__file__).resolve().parent
 SPATIAL_URDF = TEST_DIR / 'three_link_spatial.urdf'
-PLANAR_3LINK_URDF = TEST_DIR / 'three_link_planar.urdf'
 
 
 def _load_closed_form():
@@ -376,54 +374,6 @@ def test_eq36_as_printed_disagrees(arm2):
         C_x = arm2.task_terms(q, qdot)[1]
         C_x_printed = ARM.task_coriolis_as_printed(q, qdot)
         assert np.max(np.abs(C_x_printed - C_x)) > 1e-3 * max(1.0, np.max(np.abs(C_x)))
-
-
-# ---------------------------------------------------------------- construction errors
-def test_planar_three_link_is_a_redundant_planar_arm():
-    """3 joints for a 2-D planar task space: accepted as redundant; (35)-(37) refuse it."""
-    arm3 = RobotModel.from_urdf(PLANAR_3LINK_URDF)
-    assert arm3.task_axes == (0, 1) and arm3.n == 3 and arm3.redundant
-    with pytest.raises(ModelError, match='square Jacobian'):
-        arm3.task_terms(np.array([0.3, 0.4, 0.5]), np.zeros(3))
-
-
-def test_fewer_joints_than_the_task_needs_is_rejected():
-    """One revolute joint moves the tip in a plane (2-D task): ModelError 'fewer joints'."""
-    xml = default_urdf_path().read_text()
-    with pytest.raises(ModelError, match='fewer joints'):
-        RobotModel.from_urdf(xml, joints=['joint1'])
-
-
-def test_base_link_must_be_fixed_and_known():
-    xml = default_urdf_path().read_text()
-    with pytest.raises(ModelError, match='link1'):
-        RobotModel.from_urdf(xml, base_link='link1', gravity_root=(0, -9.81, 0))
-    with pytest.raises(ModelError, match='nowhere'):
-        RobotModel.from_urdf(xml, base_link='nowhere')
-
-
-def test_unknown_end_effector_link_is_rejected():
-    """A URDF string with an unknown end-effector link: ModelError naming the link."""
-    xml = default_urdf_path().read_text()
-    with pytest.raises(ModelError, match='no_such_link'):
-        RobotModel.from_urdf(xml, end_effector_link='no_such_link')
-
-
-@pytest.mark.parametrize('as_path', [False, True])
-def test_missing_urdf_file_is_rejected(tmp_path, as_path):
-    """A URDF path that does not exist: ModelError (str or Path)."""
-    missing = tmp_path / 'missing.urdf'
-    with pytest.raises(ModelError, match='not found'):
-        RobotModel.from_urdf(missing if as_path else str(missing))
-
-
-def test_urdf_string_loads_like_file():
-    """The bundled URDF given as an XML string gives the same model as the file."""
-    from_file = RobotModel.from_urdf()
-    from_xml = RobotModel.from_urdf(default_urdf_path().read_text())
-    q, qdot, _, _ = STATES_2LINK[0]
-    for a, b in zip(from_file.joint_terms(q, qdot), from_xml.joint_terms(q, qdot)):
-        _assert_close(a, b, what='xml vs file')
 
 
 # ---------------------------------------------------------------- with_theta

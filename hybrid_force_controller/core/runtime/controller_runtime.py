@@ -16,15 +16,20 @@ explicit mode (:class:`Mode`):
   law failed: stop the tool smoothly and hold it (effort.py ``SafeHold``, continuous with
   the last effort), theta_hat and h frozen.
 
-Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference
-from the arm's position and velocity (no effort jump; after ``SAFE`` the reference goes on from
-where it paused); the hand-over from an approach to the force loop aligns the force integral so
-r is continuous. theta_hat and h integrate
-over the time between consecutive *new* joint states, at most ``max_integration_dt``: a
-tick without a new state recomputes the command and integrates nothing, and a late state
-after a gap integrates a bounded step. Every new state also feeds the online stiffness
-estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py), and with
-``n_estimation`` the estimate of the surface normal (surface.py), whose n_hat then takes n's
+Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference from the
+arm's position and velocity (no effort jump; after ``SAFE`` the reference goes on from where it
+paused). With ``n_estimation``, a run that starts out of contact keeps its reference time at 0 (the
+tool held where it is along the surface) until it has touched for :data:`FIRST_TOUCH_S`, and the
+reference then goes on from its start (its normal part is the force loop's): n_hat is learnt only
+in contact, and a reference that moved along a wrong n before the first touch ran away from the
+surface (the paper's line turned 0.3 rad, the start's theta_hat 50 % off: 3 s without contact;
+re-blending from the arm at the touch instead doubled the Panda's force error on its tilted plane).
+The hand-over from an approach to the force loop aligns the force integral so r is continuous.
+theta_hat and h integrate over the time between consecutive *new* joint states, at most
+``max_integration_dt``: a tick without a new state recomputes the command and integrates nothing,
+and a late state after a gap integrates a bounded step. Every new state also feeds the online
+stiffness estimate, which (``stiffness_estimation``) sets the law's k_s (stiffness_loop.py), and
+with ``n_estimation`` the estimate of the surface normal (surface.py), whose n_hat then takes n's
 place (S, the approach, f_d n, the reference's plane). Times are seconds on the caller's clock.
 """
 from __future__ import annotations
@@ -54,6 +59,7 @@ __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
 
 _STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
+FIRST_TOUCH_S = 0.2  # with n_estimation: the reference's time starts after this long touching
 _COUNTERS = ('ticks', 'joint_state_dropped', 'joint_state_implausible',
              'joint_state_clock_implausible', 'wrench_dropped', 'wrench_implausible',
              'wrench_clock_implausible', 'safe_mode_entries', 'control_errors',
@@ -69,6 +75,7 @@ class ControllerRuntime(RuntimeInterface):
         self.ctrl = HybridForceController(model, params.law)
         self.counters = dict.fromkeys(_COUNTERS, 0)
         self.mode, self.status = Mode.WAITING, 'waiting for inputs'
+        self._touch_s = 0.0  # touching, s, before the reference's time starts (_first_touch)
         self.last_safe_reason = ''
         self.last_stall_s = 0.0  # the gap of the last stall, s
         self._in = LatestInputs(model, params.runtime, self.counters)
@@ -142,6 +149,7 @@ class ControllerRuntime(RuntimeInterface):
         if touching and self._in.tare is not None:
             self._in.tare.abort('the tool touched the surface during the tare')
         self._transitions(touching, stalled, f_W, t)
+        self._first_touch(touching, dt_state)
         approach = self._approach_ref(dt_state)
         self._motion.advance_path(dt_state, self.mode == Mode.RUNNING and touching)
         ref = self._reference_at(self.run_time)
@@ -185,11 +193,21 @@ class ControllerRuntime(RuntimeInterface):
 
     def _start(self, touching: bool) -> None:
         """(Re)start: the reference blends from the arm (after safe mode: where it paused)."""
-        self._clock.resume(self._in.state.t, after_pause=self.mode == Mode.SAFE)
+        if not (self._normal.enabled and not touching and self._clock.t0 is None):
+            self._clock.resume(self._in.state.t, after_pause=self.mode == Mode.SAFE)
+        self._touch_s = 0.0
         self.mode = Mode.RUNNING
         self._blend_from_arm()
         if not touching and self._motion.can_approach:
             self._enter_approach()
+
+    def _first_touch(self, touching: bool, dt: float) -> None:
+        """With n_estimation, start the reference's time once touching for FIRST_TOUCH_S."""
+        if self._clock.t0 is not None or self.mode != Mode.RUNNING:
+            return
+        self._touch_s = self._touch_s + dt if touching else 0.0
+        if self._touch_s >= FIRST_TOUCH_S:
+            self._clock.resume(self._in.state.t, after_pause=False)
 
     def _blend_from_arm(self) -> None:
         """Blend the reference from the arm's position and velocity (an approach goes on)."""

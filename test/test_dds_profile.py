@@ -67,7 +67,8 @@ def _ports_while_talking(domain: int, profile: str) -> tuple[int, list[str]]:
         digits = ''.join(c for c in f.name.split('port')[1] if c.isdigit())
         if digits and lo <= int(digits) < lo + 250:
             f.unlink(missing_ok=True)
-    env = cell_env(node_env(domain))  # Fast DDS's defaults
+    env = cell_env(node_env(domain))
+    env.pop(PROFILE_VAR, None)  # Fast DDS's defaults, whatever the caller set
     if profile:
         env[PROFILE_VAR] = profile
     pub = subprocess.Popen([sys.executable, '-c', CHILD, 'pub'], env=env, cwd=ROOT,

@@ -11,7 +11,9 @@ config/fastdds_loopback.xml, the Fast DDS profile the programs and this suite ru
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
+import re
 import subprocess
 import sys
 
@@ -20,9 +22,11 @@ import pytest
 from ros_helpers import domain_id, node_env, ROOT
 
 SHM = Path('/dev/shm')
+# Fast DDS names a shared-memory port (and its lock files) after its number, the RTPS port of
+# the same locator on UDP: 7400 + 250 domain + an offset below 250
+PORT_FILE = re.compile(r'fastrtps_port(\d+)')
 # a child: 'pub' publishes 100 Hz until killed; 'sub' takes 50 messages, then prints how many
-# it took and the shared-memory ports of its domain (Fast DDS names a port after its number:
-# 7400 + 250 domain + an offset below 250, the RTPS port of the same locator on UDP)
+# it took and what /dev/shm holds
 CHILD = """
 import os, sys, time, rclpy
 from std_msgs.msg import String
@@ -39,9 +43,7 @@ t0 = time.monotonic()
 while len(got) < 50 and time.monotonic() - t0 < 60.0:
     rclpy.spin_once(node, timeout_sec=0.1)
 print(len(got))
-lo = 7400 + 250 * int(os.environ['ROS_DOMAIN_ID'])
-print(' '.join(sorted(f for f in os.listdir('/dev/shm') if f.startswith('fastrtps_port')
-                      and f[13:].isdigit() and lo <= int(f[13:]) < lo + 250)))
+print(' '.join(os.listdir('/dev/shm')))
 """
 
 
@@ -60,15 +62,19 @@ def test_use_loopback_dds_keeps_the_callers_choice():
     assert cell_env(own) == own and cell_env(defaults) == defaults
 
 
-def _ports_while_talking(domain: int, profile: str) -> tuple[int, list[str]]:
-    """Messages the 'sub' child took, and the shared-memory ports of ``domain`` it saw."""
+def _domain_ports(names: list[str], domain: int) -> list[str]:
+    """Return the shared-memory port files among ``names`` that belong to ``domain``."""
     lo = 7400 + 250 * domain
-    for f in SHM.glob('*fastrtps_port*'):  # stale ones of this module's domain (a killed run)
-        digits = ''.join(c for c in f.name.split('port')[1] if c.isdigit())
-        if digits and lo <= int(digits) < lo + 250:
-            f.unlink(missing_ok=True)
-    env = cell_env(node_env(domain))
-    env.pop(PROFILE_VAR, None)  # Fast DDS's defaults, whatever the caller set
+    return sorted(name for name in names
+                  if (m := PORT_FILE.search(name)) and lo <= int(m.group(1)) < lo + 250)
+
+
+def _ports_while_talking(domain: int, profile: str) -> tuple[int, list[str]]:
+    """Messages the 'sub' child took, and the shared-memory port files of ``domain`` it saw."""
+    for name in _domain_ports(os.listdir(SHM), domain):  # stale ones (a killed run)
+        (SHM / name).unlink(missing_ok=True)
+    env = node_env(domain)
+    env.pop(PROFILE_VAR, None)  # Fast DDS's defaults, whatever the caller or the suite set
     if profile:
         env[PROFILE_VAR] = profile
     pub = subprocess.Popen([sys.executable, '-c', CHILD, 'pub'], env=env, cwd=ROOT,
@@ -80,7 +86,7 @@ def _ports_while_talking(domain: int, profile: str) -> tuple[int, list[str]]:
         pub.kill()
         pub.wait()
     assert len(out) >= 2, out  # the last two lines (Fast DDS may log before them)
-    return int(out[-2]), out[-1].split()
+    return int(out[-2]), _domain_ports(out[-1].split(), domain)
 
 
 @pytest.mark.parametrize('profile', ['loopback', 'none'])

@@ -132,10 +132,18 @@ def _start_nodes(ros_args: list[str], mu: float, lockstep: bool, env: dict[str, 
     return procs
 
 
+LOOP_TOPICS = ('/joint_states', '/effort_controller/commands')  # recorded: the time counts
+
+
 def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float,
             operator: Any = None) -> None:
     """
     Spin a recorder until its clock has advanced ``duration`` s; show progress.
+
+    The time counts from when the loop's topics (joint states and commands) both reach the
+    recorder: under lockstep the sim may run faster than the wall clock, and on one busy core
+    the commands' subscription matched 2 s of sim time after the clock's (the bag then held
+    8 of its 10 s of commands).
 
     With ``operator`` (a callable given the recorder's node, returning an object with
     ``poll(elapsed) -> done`` and ``stop()``: wipe.py), until the operator is done instead.
@@ -143,7 +151,7 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float,
     import rclpy
     from rclpy.parameter import Parameter
     from rclpy.task import Future
-    from .recorder_node import BagRecorder
+    from .recorder_node import BagRecorder, relative
     from ..common.runner import make_executor
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt
@@ -151,14 +159,16 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float,
     executor = make_executor('events')
     executor.add_node(rec)
     task = None if operator is None else operator(rec)
+    loop = [rec.resolve_topic_name(relative(t)) for t in LOOP_TOPICS]
     never = Future()
     try:
         t_wall0, t_start, shown = time.monotonic(), None, -1
         while True:
             executor.spin_until_future_complete(never, timeout_sec=0.05)
             now = rec.get_clock().now().nanoseconds * 1e-9
-            if now > 0.0 and t_start is None:
-                t_start = now
+            if t_start is None and now > 0.0:
+                counts = rec.writer.counts  # a copy, under the writer's lock
+                t_start = now if all(counts.get(t) for t in loop) else None
             elapsed = 0.0 if t_start is None else now - t_start
             if int(elapsed) != shown:
                 shown = int(elapsed)

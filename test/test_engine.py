@@ -65,6 +65,26 @@ def test_a_plant_stall_publishes_nothing():
     assert e.runtime.counters['stale_ticks'] >= 29       # ticks without a new state
 
 
+def test_the_arms_watchdog_zeroes_the_effort_while_its_driver_stalls():
+    """
+    A 300 ms plant stall: the held command for command_timeout (0.1 s), then zero effort.
+
+    The arm's firmware watchdog does not wait for its driver's process; before, the held
+    command drove the paper's arm on for the whole stall.
+    """
+    e = engine(TimingModel(stalls=(Stall('plant', 0.100, 0.300),)), 0.5)
+    held, zero = [], []
+    while e.k < e.steps:
+        e.step()
+        t = e.t - P
+        if 0.101 <= t < 0.199:
+            held.append(e.tau_plant.copy())
+        elif 0.202 <= t < 0.400:
+            zero.append(e.tau_plant.copy())
+    assert np.all(np.array(held) == held[0]) and np.abs(held[0]).max() > 1.0
+    assert not np.any(zero) and e.command_timeouts == 1
+
+
 def test_tick_on_state_ticks_once_per_state():
     log = engine(TimingModel(tick_on_state=True, latency=2e-4), 0.2).run()
     assert log.ticks == pytest.approx(200, abs=1)
@@ -121,7 +141,8 @@ def test_50_ms_gaps_leave_force_effort_and_theta_hat_calm(who):
     assert r.runtime.counters['safe_mode_entries'] == 0
     if who == 'controller':  # the node sees its own gaps: stalls, nothing integrated
         assert r.runtime.counters['stalls'] >= 3  # and the timing model's random ones
-        assert r.runtime.recovery.counts['stall'] >= 3
+        # shorter than state_timeout, the command held throughout: no episode, adaptation on
+        assert r.runtime.recovery.counts['stall'] == 0
     else:  # the plant's: late states, integrated clamped
         assert r.runtime.counters['late_states'] >= 3
 

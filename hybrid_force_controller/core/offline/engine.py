@@ -10,9 +10,11 @@ latency; the controller ticks on a timer (or on each new state) and its effort r
 plant after a latency; either process can stall (a scheduler hiccup, SIGSTOP), during
 which it neither publishes nor reads, while the plant's physics goes on with the command
 it holds, for at most ``command_timeout``: then the plant applies zero effort, as the sim's
-watchdog and a torque-controlled arm's do (the arm falls). Times are integer nanoseconds
-inside, so equal times compare exactly; ``TimingModel.lockstep(d)`` reproduces the old "d
-periods of delay" model. Pure numpy.
+watchdog and a torque-controlled arm's do (the arm falls), also while the plant's own
+process stalls (the watchdog of an arm's firmware does not wait for its driver; before, the
+held command drove the paper's arm 9 cm along the surface in a 300 ms stall). Times are
+integer nanoseconds inside, so equal times compare exactly; ``TimingModel.lockstep(d)``
+reproduces the old "d periods of delay" model. Pure numpy.
 """
 from __future__ import annotations
 
@@ -159,7 +161,7 @@ class LoopEngine:
             cmd = self._to_plant.newest(t_k)
             if cmd is not None:
                 self.tau_plant, self._t_cmd = cmd, t_k
-            self._watchdog(t_k)
+        self._watchdog(t_k)  # the arm's own, also while its driver's process stalls
         if k < self.steps:
             self.log.record(k, t_k * 1e-9, meas, self.runtime, self.tau_plant)
         dt = P * 1e-9

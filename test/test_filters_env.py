@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import math
 
-from hybrid_force_controller.core.law.reference import (blend_start, BlendedReference, Reference,
-                                                        SineReference)
+from hybrid_force_controller.core.law.reference import (blend_start, BlendedReference,
+                                                        CORRECT_VEL_S, Reference, SineReference)
 from hybrid_force_controller.core.offline.environment import (ElasticSurface,
                                                               f_W_from_sensor_wrench,
                                                               sensor_wrench_from_f_W, SurfaceError)
@@ -257,3 +257,54 @@ def test_blended_reference_equals_blend_start_of_the_sine():
             np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-15)
     for a, b in zip(ref(2.5), sine(2.5)):  # the blend is over: the sine itself
         np.testing.assert_array_equal(a, b)
+
+
+def _paper_start() -> BlendedReference:
+    """Return the paper's reference, blending from the tool's start (0.79 m, at rest)."""
+    sine = SineReference(np.array([1.0, 1.6, 0.0]), np.array([0.1, 0.0, 0.0]), 1.0)
+    ref = BlendedReference(sine, np.array([0.0, -1.0, 0.0]), 2.0)
+    ref.start_from(0.0, np.array([0.7926, 1.6, 0.0]), np.zeros(3))
+    return ref
+
+
+def test_a_correction_from_the_reference_itself_leaves_the_blend_under_way():
+    """
+    Stalls during the start-up blend, the arm on the reference: correct_from changes nothing.
+
+    Negative control: restarting the blend from the arm (start_from, what stalls did before)
+    carried the blend's 0.2 m/s into a fresh 2 s and took the reference past the sine's end
+    (1.1 m), toward the arm's full reach (|x| = 2 m at 1.19 m).
+    """
+    taus = np.arange(0.0, 4.0, 0.01)
+    plain, corrected, restarted = _paper_start(), _paper_start(), _paper_start()
+    for tau0 in (0.8, 1.0, 1.35, 1.8):
+        for ref, how in ((corrected, 'correct_from'), (restarted, 'start_from')):
+            now = ref(tau0)
+            getattr(ref, how)(tau0, now.x_d_W, now.xdot_d_W)
+    for tau in taus:
+        for a, b in zip(corrected(tau), plain(tau)):
+            np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-12)
+    assert max(plain(tau).x_d_W[0] for tau in taus) < 1.1
+    assert max(restarted(tau).x_d_W[0] for tau in taus) > 1.12
+
+
+def test_a_correction_starts_at_the_arm_and_ends_on_the_course():
+    """
+    correct_from: the arm's position and velocity at its start, the reference's acceleration.
+
+    The position's offset is gone after t_blend, the velocity's after CORRECT_VEL_S, which
+    carries the reference at most 16/81 CORRECT_VEL_S |dv| beyond dp (the peak of H1).
+    """
+    plain, ref = _paper_start(), _paper_start()
+    tau0, dp, dv = 1.0, np.array([0.01, 0.0, 0.0]), np.array([0.5, 0.0, 0.0])
+    now = ref(tau0)
+    ref.correct_from(tau0, now.x_d_W + dp, now.xdot_d_W + dv)
+    got = ref(tau0)
+    np.testing.assert_allclose(got.x_d_W, now.x_d_W + dp, atol=1e-12)
+    np.testing.assert_allclose(got.xdot_d_W, now.xdot_d_W + dv, atol=1e-12)
+    np.testing.assert_allclose(got.xddot_d_W, now.xddot_d_W, atol=1e-12)
+    gap = [ref(t).x_d_W[0] - plain(t).x_d_W[0] for t in np.arange(tau0, tau0 + 2.5, 1e-3)]
+    assert max(gap) <= dp[0] + 0.1976 * CORRECT_VEL_S * dv[0]  # H1(1/3) = 16/81
+    assert max(gap) > dp[0] + 0.19 * CORRECT_VEL_S * dv[0]  # the bound is tight
+    for a, b in zip(ref(tau0 + 2.0), plain(tau0 + 2.0)):
+        np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-12)

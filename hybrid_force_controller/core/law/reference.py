@@ -7,7 +7,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ['Reference', 'SineReference', 'blend_start']
+__all__ = ['CORRECT_VEL_S', 'Reference', 'SineReference', 'blend_start']
+
+CORRECT_VEL_S = 0.25  # correct_from blends the arm's extra velocity out over this, s
 
 
 class Reference(NamedTuple):
@@ -85,9 +87,13 @@ class BlendedReference:
     begin at the arm's position and velocity; :meth:`switch` changes the base (sine
     parameters, a held point, a path, the normal) while the reference continues from where it
     was. Both blend into the new base over ``t_blend`` (or a duration of their own,
-    ``blend_s``) as :func:`blend_start` does. Only the part along the surface is blended;
-    along ``n`` the force loop acts. A path is any object whose ``rows(tau)`` returns the
-    rows x_d, xdot_d, xddot_d as a new (3, 3) array (it keeps its own clock).
+    ``blend_s``) as :func:`blend_start` does. :meth:`correct_from` (a stall, the end of safe
+    mode) starts from the arm too, but blends back onto the reference as it goes on: a blend
+    under way keeps its course, and only the arm's deviation from it is blended out (its
+    position over ``t_blend``, its velocity over ``CORRECT_VEL_S``). Only the part along the
+    surface is blended; along ``n`` the force loop acts. A path is any object whose
+    ``rows(tau)`` returns the rows x_d, xdot_d, xddot_d as a new (3, 3) array (it keeps its own
+    clock).
     """
 
     def __init__(self, sine: SineReference, n_W: np.ndarray, t_blend: float) -> None:
@@ -98,6 +104,8 @@ class BlendedReference:
         self.dp_W, self.dv_W, self.tau_b = np.zeros(3), np.zeros(3), 0.0
         self._tb = t_blend  # the current blend's duration
         self._offsets = np.zeros((2, 3))  # rows dp_W, dv_W
+        self._corr = np.zeros((2, 3))  # correct_from's offsets from the blended reference
+        self._corr_tau, self._corr_tb = 0.0, 0.0  # its start and duration (0: none)
 
     def _base_rows(self, tau: float) -> np.ndarray:
         """Return the base (the sine, the held point at rest, the path) as rows of a new array."""
@@ -123,6 +131,12 @@ class BlendedReference:
         rows, t = self._base_rows(tau), tau - self.tau_b
         if not (self._tb <= 0.0 or t >= self._tb):  # blending (blend_start)
             rows += _hermite(t, self._tb).dot(self._offsets)
+        t = tau - self._corr_tau
+        if self._corr_tb > 0.0 and t < self._corr_tb:  # a correction (correct_from)
+            if self.t_blend > 0.0 and t < self.t_blend:
+                rows += _hermite(t, self.t_blend)[:, 0:1] * self._corr[0]
+            if t < CORRECT_VEL_S:
+                rows += _hermite(t, CORRECT_VEL_S)[:, 1:2] * self._corr[1]
         return rows
 
     def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray,
@@ -133,6 +147,24 @@ class BlendedReference:
         self._offsets = np.array((self.dp_W, self.dv_W))
         self.tau_b = tau
         self._tb = self.t_blend if blend_s is None else blend_s
+        self._corr_tb = 0.0  # a new blend replaces a correction
+
+    def correct_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray) -> None:
+        """
+        Blend from ``x_W``, ``xdot_W`` at ``tau`` back onto the reference as it goes on.
+
+        The position's offset blends out over ``t_blend``, the velocity's over
+        :data:`CORRECT_VEL_S`: ``x_c = H0(s) dp + T_v H1(s_v) dv`` (start: the arm's position
+        and velocity, zero acceleration; end: the reference), so the arm's own velocity
+        carries it at most ``16/81 T_v |dv|`` (5 cm per m/s; peak deceleration ``3.94 |dv| /
+        T_v``). Restarting the blend under way instead (:meth:`start_from`) carried the arm's
+        velocity into a fresh ``t_blend``: stalls during the paper's start-up blend, the arm at
+        0.22 m/s, took the reference 9 cm past the sine's end, to the arm's full reach.
+        """
+        self._corr_tb = 0.0
+        now = self.rows(tau)
+        self._corr = np.array((self.P_t @ (x_W - now[0]), self.P_t @ (xdot_W - now[1])))
+        self._corr_tau, self._corr_tb = tau, max(self.t_blend, CORRECT_VEL_S)
 
     def switch(self, tau: float, *, sine: SineReference | None = None,
                x_hold_W: np.ndarray | None = None, path: Any = None, release: bool = False,

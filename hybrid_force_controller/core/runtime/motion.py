@@ -158,9 +158,14 @@ class Motion:
         """Return the reference at ``tau`` as rows x_d, xdot_d, xddot_d (a new (3, 3) array)."""
         return self.ref.rows(tau)
 
-    def start_from(self, tau: float, p_W: np.ndarray, pdot_W: np.ndarray) -> None:
-        """Blend the reference from the tool's position and velocity (an approach goes on)."""
-        self.ref.start_from(tau, p_W, pdot_W)
+    def start_from(self, tau: float, p_W: np.ndarray, pdot_W: np.ndarray,
+                   correct: bool = False) -> None:
+        """
+        Blend the reference from the tool's position and velocity (an approach goes on).
+
+        ``correct``: back onto the reference as it goes on (BlendedReference.correct_from).
+        """
+        (self.ref.correct_from if correct else self.ref.start_from)(tau, p_W, pdot_W)
         self.r_n = float(self.n_W @ pdot_W)
 
     @property

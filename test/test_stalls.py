@@ -15,7 +15,7 @@ from hybrid_force_controller.core.offline.scenario import run_scenario, Scenario
 from hybrid_force_controller.core.offline.timing import Stall, TimingModel
 from hybrid_force_controller.core.runtime.controller_runtime import Mode
 from hybrid_force_controller.core.runtime.recovery import (Recovery, RecoveryConfig,
-                                                           RecoveryConfigError)
+                                                           RecoveryConfigError, SETTLE_AFTER_S)
 from hybrid_force_controller.tools.recovery_figures import (recovery_figures, settle_time,
                                                             theta_steady)
 import numpy as np
@@ -61,6 +61,39 @@ def test_without_episodes_the_same_freeze_throws_theta_hat():
     """Negative control: with ``episode_recovery`` off, a 500 ms freeze throws theta_hat."""
     fig = figures(freeze_run(500.0, 2, {'episode_recovery': False}), T_FREEZE + 0.5)
     assert fig['theta_change'] > 0.5, fig
+
+
+def early_hiccups_run(recovery: bool, seed: int = 0):
+    """
+    Run the paper's scenario with the whole machine stalled 300 ms three times in 2.4 s.
+
+    theta_hat starts at (2, 2/3) times the truth, as the sim's masses are off in the real-time
+    tests: nothing is trusted yet when the hiccups come. The CI failure of 2026-12-03.
+    """
+    stalls = tuple(Stall(who, t, 0.3) for t in (0.5, 1.3, 2.1) for who in ('controller', 'plant'))
+    timing = TimingModel.ros_measured(seed=seed, stalls=stalls, tick_on_state=True)
+    return run_scenario(ScenarioConfig(theta_hat0_scale=(2.0, 2.0 / 3.0), duration=10.0,
+                                       timing=timing, overrides={'episode_recovery': recovery}))
+
+
+@pytest.mark.parametrize('recovery', [True, False])
+def test_hiccups_before_theta_hat_is_trusted_do_not_throw_it(recovery):
+    """
+    A stall longer than state_timeout met in the force loop holds theta_hat (provisional).
+
+    theta_hat stays within its start-up range (the start and the truth, 5 % margin) and ends
+    within 1 % of the truth, the force within 0.05 N RMS over the last 3 s. Negative control:
+    without episodes the falls throw theta_hat 28 % past its start.
+    """
+    r = early_hiccups_run(recovery)
+    bound = 1.05 * np.maximum(r.theta_hat[0], r.theta_true)
+    within = bool(np.all(r.theta_hat <= bound))
+    assert within is recovery, (r.theta_hat.max(axis=0), bound)
+    if recovery:
+        f = r.f_true_W[r.t > 7.0] @ r.n_W
+        np.testing.assert_allclose(r.theta_hat[-1], r.theta_true, rtol=0.01)
+        assert np.sqrt(np.mean((f - F_D) ** 2)) <= 0.05
+        assert r.runtime.counters['stalls'] >= 3  # the node saw the hiccups
 
 
 # ------------------------------------------------------------------ the approach
@@ -115,28 +148,90 @@ def test_a_freeze_during_an_approach_ends_on_the_surface():
 
 
 # ------------------------------------------------------------------ the bookkeeping
+def _calm(rec: Recovery, t0: float, t1: float, theta: np.ndarray, df: float = 0.0,
+          e: float = 0.0, loop: bool = True) -> None:
+    """Note ticks every 10 ms over [t0, t1) with the same errors and theta_hat."""
+    for t in np.arange(t0, t1 - 1e-9, 0.01):
+        rec.note(float(t), df, e, loop, theta)
+
+
 def test_trusted_estimate_needs_a_calm_stretch_and_an_episode_holds_it():
     rec = Recovery(2, RecoveryConfig(calm_time=0.5))
     theta = np.array([1.0, 2.0])
-    assert rec.begin('stall', 0.0) is None  # nothing trusted yet: only counted
+    assert rec.begin('stall', 0.0, theta, loop_broken=True) is None  # not in the loop yet
     assert rec.counts['stall'] == 1 and not rec.frozen
-    for k in range(60):  # calm from t = 0.1: the episode ends at 0.6, then trusts
-        rec.note(0.1 + 0.01 * k, 0.0, 0.0, True, theta)
-    assert not rec.episode and rec.has_trusted
+    _calm(rec, 0.1, 0.7, theta)  # calm from t = 0.1: the episode ends at 0.6
+    assert not rec.episode and not rec.has_trusted
+    _calm(rec, 0.7, 1.21, theta)  # the window from 0.7 trusts its start at 1.2
+    assert rec.has_trusted
     np.testing.assert_array_equal(rec.trusted, theta)
-    held = rec.begin('force_transient', 1.0)
+    held = rec.begin('force_transient', 1.3, 3 * theta)
     np.testing.assert_array_equal(held, theta)
     assert rec.frozen and rec.episode == 'force_transient'
-    rec.begin('stall', 1.1)
+    rec.begin('stall', 1.4, 3 * theta, loop_broken=True)
     assert rec.counts['stall'] == 1 and rec.episode == 'force_transient'  # one at a time
-    rec.note(1.2, 0.0, 0.0, True, 2 * theta)
-    assert rec.note(1.7, 0.0, 0.0, True, 2 * theta)  # 0.5 s calm: it ends
+    rec.note(1.5, 0.0, 0.0, True, 2 * theta)
+    assert rec.note(2.0, 0.0, 0.0, True, 2 * theta)  # 0.5 s calm: it ends
     np.testing.assert_array_equal(rec.trusted, theta)  # the episode's theta is not trusted
+
+
+def test_a_theta_hat_thrown_in_one_tick_is_never_trusted():
+    """A window trusts the estimate it began with: one the next tick brings must stay calm."""
+    rec = Recovery(2, RecoveryConfig(calm_time=0.5))
+    theta = np.array([1.0, 2.0])
+    _calm(rec, 0.0, 0.6, theta)
+    _calm(rec, 0.6, 0.9, 3 * theta)  # thrown at 0.6; the errors it causes come 0.3 s later
+    assert rec.begin('contact_loss', 0.9, 3 * theta) is not None
+    np.testing.assert_array_equal(rec.trusted, theta)
+
+
+def test_before_trust_a_broken_loop_holds_theta_hat_until_settled():
+    """
+    Safe mode met in the force loop with nothing trusted: theta_hat holds (provisional).
+
+    It ends after calm_time settled (errors below the episode thresholds, not calm), and
+    after SETTLE_AFTER_S in any case; an episode of the model's own making only counts.
+    """
+    rec = Recovery(2, RecoveryConfig(calm_time=0.5))
+    theta = np.array([1.0, 2.0])
+    _calm(rec, 0.0, 0.3, theta, df=0.5, e=0.1)  # in the loop, a model still wrong: not calm
+    assert rec.begin('force_transient', 0.3, 2 * theta) is None and not rec.frozen
+    held = rec.begin('safe_mode', 0.31, theta, loop_broken=True)
+    np.testing.assert_array_equal(held, theta)
+    assert rec.frozen and rec.provisional
+    _calm(rec, 0.4, 0.89, theta, df=2.0, e=0.2)  # settled from 0.4, not calm
+    assert rec.frozen
+    assert rec.note(0.9, 2.0, 0.2, True, theta) and not rec.frozen and not rec.has_trusted
+    rec.begin('stall', 1.0, theta, loop_broken=True)
+    _calm(rec, 1.0, 1.0 + SETTLE_AFTER_S - 0.01, theta, df=5.0, e=0.3)  # never settled
+    assert rec.frozen
+    assert rec.note(1.0 + SETTLE_AFTER_S, 5.0, 0.3, True, theta) and not rec.frozen
+
+
+def test_out_of_the_force_loop_a_broken_loop_only_counts_before_trust():
+    rec = Recovery(2, RecoveryConfig(calm_time=0.5))
+    _calm(rec, 0.0, 0.3, np.ones(2), loop=False)  # an approach
+    assert rec.begin('safe_mode', 0.3, np.ones(2), loop_broken=True) is None
+    assert rec.counts['safe_mode'] == 1 and not rec.frozen
+
+
+def test_an_episode_that_never_calms_ends_settled_after_settle_after_s():
+    """A trusted estimate too wrong for calm must not freeze adaptation for good."""
+    rec = Recovery(2, RecoveryConfig(calm_time=0.5))
+    theta = np.array([1.0, 2.0])
+    _calm(rec, 0.0, 0.51, theta)
+    assert rec.has_trusted
+    rec.begin('stall', 1.0, theta, loop_broken=True)
+    _calm(rec, 1.0, 1.0 + SETTLE_AFTER_S, theta, df=0.5, e=0.1)  # settled, never calm
+    assert rec.frozen
+    _calm(rec, 1.0 + SETTLE_AFTER_S, 1.0 + SETTLE_AFTER_S + 0.51, theta, df=0.5, e=0.1)
+    assert not rec.frozen
 
 
 def test_new_projection_bounds_clip_the_trusted_estimate():
     rec = Recovery(2, RecoveryConfig(calm_time=0.0))
-    rec.note(0.0, 0.0, 0.0, True, np.array([1.0, 5.0]))
+    for t in (0.0, 0.01):  # a window of calm_time 0 still needs the tick after its start
+        rec.note(t, 0.0, 0.0, True, np.array([1.0, 5.0]))
     rec.configure(RecoveryConfig(), np.array([0.0, 0.0]), np.array([2.0, 3.0]))
     np.testing.assert_array_equal(rec.trusted, [1.0, 3.0])
 

@@ -173,12 +173,12 @@ class ControllerRuntime(RuntimeInterface):
         if self.mode in (Mode.WAITING, Mode.SAFE):
             if self._restarted:
                 self._restarted = False
-                self._begin('restart', t)
+                self._begin('restart', t, broken=True)
             self._start(touching)
         else:
             self._switch(touching, f_W, t)
-            if stalled:  # the reference starts again from the arm
-                self._blend_from_arm()
+            if stalled:  # the reference blends from the arm back onto its course
+                self._blend_from_arm(correct=True)
         kind = self.recovery.triggered()
         if kind:  # the last tick's force transient or tracking fault
             self._begin(kind, t)
@@ -192,12 +192,13 @@ class ControllerRuntime(RuntimeInterface):
         return dt, dt_int
 
     def _start(self, touching: bool) -> None:
-        """(Re)start: the reference blends from the arm (after safe mode: where it paused)."""
+        """(Re)start: the reference blends from the arm (after safe mode: back onto its course)."""
+        after_safe = self.mode == Mode.SAFE
         if not (self._normal.enabled and not touching and self._clock.t0 is None):
-            self._clock.resume(self._in.state.t, after_pause=self.mode == Mode.SAFE)
+            self._clock.resume(self._in.state.t, after_pause=after_safe)
         self._touch_s = 0.0
         self.mode = Mode.RUNNING
-        self._blend_from_arm()
+        self._blend_from_arm(correct=after_safe)
         if not touching and self._motion.can_approach:
             self._enter_approach()
 
@@ -209,12 +210,17 @@ class ControllerRuntime(RuntimeInterface):
         if self._touch_s >= FIRST_TOUCH_S:
             self._clock.resume(self._in.state.t, after_pause=False)
 
-    def _blend_from_arm(self) -> None:
-        """Blend the reference from the arm's position and velocity (an approach goes on)."""
+    def _blend_from_arm(self, correct: bool = False) -> None:
+        """
+        Blend the reference from the arm's position and velocity (an approach goes on).
+
+        ``correct`` (a stall, the end of safe mode): back onto the reference's course, a blend
+        under way going on (reference.py ``correct_from``); otherwise a new blend into the base.
+        """
         kin = self._in.kin()
         pdot_W = np.zeros(3)
         pdot_W[self.model.task_index] = kin.xdot
-        self._motion.start_from(self.run_time, kin.p_W, pdot_W)
+        self._motion.start_from(self.run_time, kin.p_W, pdot_W, correct)
 
     def _switch(self, touching: bool, f_W: np.ndarray, t: float) -> None:
         """Contact lost: approach (an episode); contact found: the force loop, r continuous."""
@@ -272,18 +278,31 @@ class ControllerRuntime(RuntimeInterface):
 
     # ------------------------------------------------------------------ episodes (recovery.py)
     def _stalled(self, t: float) -> bool:
-        """Say whether the gap since the last tick is a stall (an episode; counted)."""
+        """
+        Say whether the gap since the last tick is a stall (counted).
+
+        One longer than ``state_timeout`` is an episode: the arm may have dropped meanwhile (a
+        robot's command watchdog is of that order). Shorter ones, the command held throughout,
+        started episodes too, and with the random 10-30 ms hiccups of a loaded machine they
+        kept adaptation frozen for most of a run whose trusted estimate was still wrong.
+        """
         gap = t - self._clock.t_tick
         if self.mode == Mode.WAITING or not gap > self.recovery.cfg.stall_periods * self._period:
             return False
         self.counters['stalls'] += 1
         self.last_stall_s = gap
-        self._begin('stall', t)
+        if gap > self._params.runtime.state_timeout:
+            self._begin('stall', t, broken=True)
         return True
 
-    def _begin(self, kind: str, t: float) -> None:
-        """Open an episode; theta_hat takes the trusted estimate (if there is one)."""
-        theta = self.recovery.begin(kind, t)
+    def _begin(self, kind: str, t: float, broken: bool = False) -> None:
+        """
+        Open an episode; theta_hat takes the estimate it holds (recovery.py), if any.
+
+        ``broken``: the loop itself was broken longer than state_timeout (safe mode, a restart,
+        a stall): before a trusted estimate, theta_hat holds its value (provisional).
+        """
+        theta = self.recovery.begin(kind, t, self.ctrl.theta_hat, broken)
         if theta is not None:
             self.ctrl.theta_hat = theta.copy()
 
@@ -298,7 +317,7 @@ class ControllerRuntime(RuntimeInterface):
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
-            self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
+            self._begin('safe_mode', t, broken=True)  # theta_hat may change: latch the held one
             self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last)
             self._clock.pause(s.t)  # the reference pauses (_start)
             self._motion.pause_path()

@@ -48,8 +48,9 @@ def _warnings(runtime: ControllerRuntime, new_events: Mapping[str, int],
     rec = runtime.recovery
     age = runtime.state_stamp - rec.t_begin
     if rec.episode and age > EPISODE_WARN_S:
-        out.append(f'fault episode ({rec.episode}) for {age:.0f} s: theta_hat held at the '
-                   'trusted estimate until calm returns')
+        held = ('its value before the episode until the arm settles' if rec.provisional else
+                'the trusted estimate until calm returns')
+        out.append(f'fault episode ({rec.episode}) for {age:.0f} s: theta_hat held at {held}')
     margin_ms = float(extra.get('delay_margin_ms', math.inf))
     delay_ms = float(extra.get('delay_p99_ms', math.nan))
     if math.isfinite(delay_ms) and delay_ms + 1.0 > 0.5 * margin_ms:  # +1 ms: plant side
@@ -155,7 +156,8 @@ def _recovery_values(runtime: ControllerRuntime) -> dict[str, object]:
     rec = runtime.recovery
     trusted = ', '.join(f'{v:.4g}' for v in rec.trusted) if rec.has_trusted else 'none'
     return {'episode': rec.episode or 'none', 'theta_trusted': trusted,
-            'adaptation_frozen': rec.frozen, 'last_stall_ms': f'{runtime.last_stall_s * 1e3:.4g}',
+            'adaptation_frozen': rec.frozen, 'episode_provisional': rec.provisional,
+            'last_stall_ms': f'{runtime.last_stall_s * 1e3:.4g}',
             **{f'episodes_{k}': v for k, v in rec.counts.items()}}
 
 

@@ -7,9 +7,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-__all__ = ['CORRECT_VEL_S', 'Reference', 'SineReference', 'blend_start']
+__all__ = ['CORRECT_ACCEL', 'CORRECT_VEL_S', 'H0_PEAK', 'Reference', 'SineReference',
+           'blend_start']
 
 CORRECT_VEL_S = 0.25  # correct_from blends the arm's extra velocity out over this, s
+CORRECT_ACCEL = 2.0  # correct_from's position part accelerates at most half this, m/s^2
+H0_PEAK = 5.78  # the peak of the quintic blend's |H0''| (_hermite), 10/sqrt(3) rounded up
 
 
 class Reference(NamedTuple):
@@ -90,10 +93,10 @@ class BlendedReference:
     ``blend_s``) as :func:`blend_start` does. :meth:`correct_from` (a stall, the end of safe
     mode) starts from the arm too, but blends back onto the reference as it goes on: a blend
     under way keeps its course, and only the arm's deviation from it is blended out (its
-    position over ``t_blend``, its velocity over ``CORRECT_VEL_S``). Only the part along the
-    surface is blended; along ``n`` the force loop acts. A path is any object whose
-    ``rows(tau)`` returns the rows x_d, xdot_d, xddot_d as a new (3, 3) array (it keeps its own
-    clock).
+    position within ``t_blend`` at most 1 m/s^2, its velocity over ``CORRECT_VEL_S``). Only
+    the part along the surface is blended; along ``n`` the force loop acts. A path is any
+    object whose ``rows(tau)`` returns the rows x_d, xdot_d, xddot_d as a new (3, 3) array (it
+    keeps its own clock).
     """
 
     def __init__(self, sine: SineReference, n_W: np.ndarray, t_blend: float) -> None:
@@ -106,6 +109,7 @@ class BlendedReference:
         self._offsets = np.zeros((2, 3))  # rows dp_W, dv_W
         self._corr = np.zeros((2, 3))  # correct_from's offsets from the blended reference
         self._corr_tau, self._corr_tb = 0.0, 0.0  # its start and duration (0: none)
+        self._corr_tp = 0.0  # the duration of its position part
 
     def _base_rows(self, tau: float) -> np.ndarray:
         """Return the base (the sine, the held point at rest, the path) as rows of a new array."""
@@ -133,8 +137,8 @@ class BlendedReference:
             rows += _hermite(t, self._tb).dot(self._offsets)
         t = tau - self._corr_tau
         if self._corr_tb > 0.0 and t < self._corr_tb:  # a correction (correct_from)
-            if self.t_blend > 0.0 and t < self.t_blend:
-                rows += _hermite(t, self.t_blend)[:, 0:1] * self._corr[0]
+            if self._corr_tp > 0.0 and t < self._corr_tp:
+                rows += _hermite(t, self._corr_tp)[:, 0:1] * self._corr[0]
             if t < CORRECT_VEL_S:
                 rows += _hermite(t, CORRECT_VEL_S)[:, 1:2] * self._corr[1]
         return rows
@@ -153,18 +157,27 @@ class BlendedReference:
         """
         Blend from ``x_W``, ``xdot_W`` at ``tau`` back onto the reference as it goes on.
 
-        The position's offset blends out over ``t_blend``, the velocity's over
-        :data:`CORRECT_VEL_S`: ``x_c = H0(s) dp + T_v H1(s_v) dv`` (start: the arm's position
-        and velocity, zero acceleration; end: the reference), so the arm's own velocity
-        carries it at most ``16/81 T_v |dv|`` (5 cm per m/s; peak deceleration ``3.94 |dv| /
-        T_v``). Restarting the blend under way instead (:meth:`start_from`) carried the arm's
-        velocity into a fresh ``t_blend``: stalls during the paper's start-up blend, the arm at
-        0.22 m/s, took the reference 9 cm past the sine's end, to the arm's full reach.
+        The position's offset dp blends out over ``T_p = sqrt(2 H0_PEAK |dp| / CORRECT_ACCEL)``
+        (peak acceleration ``CORRECT_ACCEL / 2``) within [``CORRECT_VEL_S``, ``t_blend``], the
+        velocity's over :data:`CORRECT_VEL_S`: ``x_c = H0(t / T_p) dp + T_v H1(t / T_v) dv``
+        (start: the arm's position and velocity, zero acceleration; end: the reference), so the
+        arm's own velocity carries it at most ``16/81 T_v |dv|`` (5 cm per m/s; peak
+        deceleration ``3.94 |dv| / T_v``). Restarting the blend under way instead
+        (:meth:`start_from`) carried the arm's velocity into a fresh ``t_blend``: stalls
+        during the paper's start-up blend, the arm at 0.22 m/s, took the reference 9 cm past
+        the sine's end, to the arm's full reach. A 2 s return of the position alone, after
+        1 s of NaN joint states had left the arm 17 cm off, met the sine going out to its end:
+        the reference stayed within 1 cm of full reach for 1 s (test_recovery.py).
         """
         self._corr_tb = 0.0
         now = self.rows(tau)
         self._corr = np.array((self.P_t @ (x_W - now[0]), self.P_t @ (xdot_W - now[1])))
-        self._corr_tau, self._corr_tb = tau, max(self.t_blend, CORRECT_VEL_S)
+        T_p = self.t_blend
+        if T_p > 0.0:
+            dp = float(np.linalg.norm(self._corr[0]))
+            T_p = min(max(math.sqrt(2.0 * H0_PEAK * dp / CORRECT_ACCEL), CORRECT_VEL_S), T_p)
+        self._corr_tau, self._corr_tp = tau, T_p
+        self._corr_tb = max(T_p, CORRECT_VEL_S)
 
     def switch(self, tau: float, *, sine: SineReference | None = None,
                x_hold_W: np.ndarray | None = None, path: Any = None, release: bool = False,

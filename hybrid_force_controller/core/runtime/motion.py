@@ -25,11 +25,10 @@ from ..law.approach import Approach, Handover
 from ..law.control_law import ApproachRef
 from ..law.force_reference import ForceRamp
 from ..law.path import PathPlan, stop_time
-from ..law.reference import BlendedReference, Reference, SineReference
+from ..law.reference import BlendedReference, H0_PEAK, Reference, SineReference
 
 __all__ = ['Motion', 'reference_changed']
 
-_H0_PEAK = 5.78  # the peak of the quintic blend's |H0''| (reference.py _hermite): 10/sqrt(3)
 
 _REFERENCE_FIELDS = ('ref_center', 'ref_amplitude', 'ref_omega', 'ref_blend_time')
 
@@ -112,7 +111,7 @@ class Motion:
         dv_W = self.ref.P_t @ now.xdot_d_W
         T = stop_time(float(np.linalg.norm(dv_W)), a_max)
         r = float(np.linalg.norm(self.ref.P_t @ (now.x_d_W - start[0]) + 0.5 * T * dv_W))
-        blend = max(T, float(np.sqrt(2.0 * _H0_PEAK * r / a_max)))
+        blend = max(T, float(np.sqrt(2.0 * H0_PEAK * r / a_max)))
         self._release()
         self.path = run
         self.ref.switch(tau, path=run, blend_s=blend)

@@ -41,6 +41,7 @@ OFFLINE_MODULES = {
     'test_mujoco_demo_args', 'test_mujoco_plant', 'test_normal_closed_loop',
     'test_normal_estimate', 'test_params', 'test_path', 'test_path_runtime',
     'test_pep257', 'test_recovery', 'test_report', 'test_report_normal', 'test_report_path',
+    'test_singularity',
     'test_runtime', 'test_runtime_changes', 'test_stalls', 'test_stiffness',
     'test_stiffness_closed_loop', 'test_stiffness_loop', 'test_stiffness_tools',
     'test_surface_shapes', 'test_tool_gravity',

@@ -55,6 +55,7 @@ class LawGains:
     k_a: float
     adapt_error_limit: float
     adapt_dead_zone: float
+    singular_sigma: float
     theta_hat0: np.ndarray
     theta_min: np.ndarray
     theta_max: np.ndarray
@@ -242,7 +243,7 @@ def _law_gains(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> LawG
         n=_normal(v['n'], model.task_axes), f_d=s['f_d'], k_d=s['k_d'], k_null=s['k_null'],
         k_max=s['k_max'], k_s=s['k_s'], k_a=s['k_a'],
         adapt_error_limit=s['adapt_error_limit'], adapt_dead_zone=s['adapt_dead_zone'],
-        theta_hat0=theta0, theta_min=lo,
+        singular_sigma=s['singular_sigma'], theta_hat0=theta0, theta_min=lo,
         theta_max=hi, integral_limit=s['integral_limit'])
 
 

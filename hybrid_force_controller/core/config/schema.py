@@ -83,6 +83,11 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _law('adapt_dead_zone', 'double', 0.0,
          'Dead zone of the adaptation (26): it integrates e scaled by max(0, 1 - d/|e|), '
          'so errors below d (sensor noise) do not drift theta_hat, m/s (0: off).', 0.0, 1e3),
+    _law('singular_sigma', 'double', 0.1,
+         'Near a singularity, where the smallest singular value of the task Jacobian of a '
+         'square arm is below this, the law inverts J damped (damped least squares) and '
+         'theta_hat holds, m (0: off; the 2-link arm of the paper: 0.21 at the end of its '
+         'sine, 0 at full reach).', 0.0, 1e3),
     _law('theta_hat0', 'double_array', [],
          'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',
          read_only=True),

@@ -71,7 +71,7 @@ from .law_io import ApproachRef, ControlError, ControlOutput
 from .moving_normal import MovingNormal
 from .reference import Reference
 from ..config.params import LawGains
-from ..model.linalg import small_inverse
+from ..model.linalg import damped_inverse, small_inverse
 from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
@@ -113,6 +113,7 @@ class HybridForceController:
         self._k = _Compliance()
         self._moving: MovingNormal | None = None  # a moving normal (set_normal), else d.n
         self.h = 0.0
+        self.damped = False  # the last step used a damped inverse (a pose near a singularity)
         self.set_gains(gains)
         self.reset()
 
@@ -307,7 +308,9 @@ class HybridForceController:
         kin : TaskKinematics, optional
             ``model.kinematics(q, qdot)`` when the caller has it already.
         adapt : bool
-            False freezes theta_hat (a fault episode); h still integrates.
+            False freezes theta_hat (a fault episode); h still integrates. It also holds
+            near a singularity (``damped``: the smallest singular value of a square arm's J
+            below ``singular_sigma``), where J is inverted damped (linalg.damped_inverse).
 
         Returns
         -------
@@ -323,8 +326,10 @@ class HybridForceController:
         f = f_W[model.task_index]
         r, rdot, df_n, r_n, rdot_n = self.reference_velocity(kin, ref, f, approach, r_bias)
         e = kin.xdot - r
-        J_pinv, N = (self._pinv(q, kin.J_ee) if model.redundant
-                     else (small_inverse(kin.J_ee), None))
+        if model.redundant:
+            (J_pinv, N), self.damped = self._pinv(q, kin.J_ee), False
+        else:  # damped near a singularity, where theta_hat holds (damped_inverse)
+            (J_pinv, self.damped), N = damped_inverse(kin.J_ee, g.singular_sigma), None
         qdot_r = J_pinv.dot(r)
         qddot_r = J_pinv.dot(rdot - kin.Jdot_ee.dot(qdot_r))
         Y_q, tau_0 = model.regressor_affine(q, qdot, qdot_r, qddot_r)
@@ -341,7 +346,7 @@ class HybridForceController:
                 n = self.n
                 s = J_pinv @ (e - n * float(n @ e))
             self._integrate(Y_q, s * adaptation_weight(e, g.adapt_error_limit, g.adapt_dead_zone)
-                            if adapt else None, df_n, dt,
+                            if adapt and not self.damped else None, df_n, dt,
                             in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
 

@@ -1,9 +1,11 @@
 """Small dense linear algebra of the 1 kHz path (pure numpy)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ['small_inverse']
+__all__ = ['damped_inverse', 'sigma_min_sq', 'small_inverse']
 
 
 def small_inverse(A: np.ndarray) -> np.ndarray:
@@ -29,3 +31,44 @@ def small_inverse(A: np.ndarray) -> np.ndarray:
             raise np.linalg.LinAlgError('singular matrix (a singular pose)')
         return np.array(adj) / det
     return np.linalg.inv(A)
+
+
+def sigma_min_sq(J: np.ndarray) -> float:
+    """
+    Return the square of the smallest singular value of a square ``J``.
+
+    2 x 2 in closed form, ``2 det^2 / (F + sqrt(F^2 - 4 det^2))`` with ``F = |J|_F^2`` (no
+    cancellation near a singularity); otherwise the smallest eigenvalue of ``J J^T``.
+    """
+    if J.shape == (2, 2):
+        (a, b), (c, d) = J.tolist()
+        det, F = a * d - b * c, a * a + b * b + c * c + d * d
+        return 2.0 * det * det / (F + math.sqrt(max(F * F - 4.0 * det * det, 0.0)) or 1.0)
+    return float(np.linalg.eigvalsh(J.dot(J.T))[0])
+
+
+def damped_inverse(J: np.ndarray, sigma0: float) -> tuple[np.ndarray, bool]:
+    r"""
+    Return ``J^-1`` of a square ``J``, damped near a singularity, and whether it is damped.
+
+    Damped least squares with a variable damping (Nakamura and Hanafusa, 1986; Chiaverini,
+    1997): with :math:`\sigma` the smallest singular value of J and
+    :math:`\sigma_0` = ``sigma0``,
+
+    .. math::
+
+        J^\# = J^T (J J^T + \mu^2 I)^{-1}, \qquad
+        \mu^2 = \sigma_0^2 - \sigma^2 \ \ (\sigma < \sigma_0), \quad 0 \ \text{otherwise}
+
+    so :math:`J^\# = J^{-1}` away from the singularity, continuous at
+    :math:`\sigma = \sigma_0`, and along the singular direction the gain
+    :math:`\sigma / (\sigma^2 + \mu^2) = \sigma / \sigma_0^2` falls to 0 instead of
+    :math:`1 / \sigma` growing without bound. ``sigma0`` 0: never damped.
+    """
+    s2 = sigma_min_sq(J)
+    mu2 = sigma0 * sigma0 - s2
+    if mu2 <= 0.0:
+        return small_inverse(J), False
+    JJt = J.dot(J.T)
+    JJt[np.diag_indices_from(JJt)] += mu2
+    return J.T.dot(small_inverse(JJt)), True

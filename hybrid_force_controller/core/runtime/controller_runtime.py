@@ -64,7 +64,7 @@ _COUNTERS = ('ticks', 'joint_state_dropped', 'joint_state_implausible',
              'joint_state_clock_implausible', 'wrench_dropped', 'wrench_implausible',
              'wrench_clock_implausible', 'safe_mode_entries', 'control_errors',
              'saturated_ticks', 'clock_restarts', 'approach_entries', 'stale_ticks',
-             'late_states', 'stalls')
+             'late_states', 'stalls', 'singular_ticks')
 
 
 class ControllerRuntime(RuntimeInterface):
@@ -161,6 +161,7 @@ class ControllerRuntime(RuntimeInterface):
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
+        self.counters['singular_ticks'] += self.ctrl.damped
         if dt_state > 0.0:
             self._normal.feed_stiffness(self._stiffness, self.ctrl, f_n, out.kin.p_W, dt_state,
                                         dt_int, touching)

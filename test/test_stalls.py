@@ -158,7 +158,7 @@ def _calm(rec: Recovery, t0: float, t1: float, theta: np.ndarray, df: float = 0.
 def test_trusted_estimate_needs_a_calm_stretch_and_an_episode_holds_it():
     rec = Recovery(2, RecoveryConfig(calm_time=0.5))
     theta = np.array([1.0, 2.0])
-    assert rec.begin('stall', 0.0, theta, loop_broken=True) is None  # not in the loop yet
+    assert rec.begin('stall', 0.0, theta) is None  # not in the loop yet
     assert rec.counts['stall'] == 1 and not rec.frozen
     _calm(rec, 0.1, 0.7, theta)  # calm from t = 0.1: the episode ends at 0.6
     assert not rec.episode and not rec.has_trusted
@@ -168,7 +168,7 @@ def test_trusted_estimate_needs_a_calm_stretch_and_an_episode_holds_it():
     held = rec.begin('force_transient', 1.3, 3 * theta)
     np.testing.assert_array_equal(held, theta)
     assert rec.frozen and rec.episode == 'force_transient'
-    rec.begin('stall', 1.4, 3 * theta, loop_broken=True)
+    rec.begin('stall', 1.4, 3 * theta)
     assert rec.counts['stall'] == 1 and rec.episode == 'force_transient'  # one at a time
     rec.note(1.5, 0.0, 0.0, True, 2 * theta)
     assert rec.note(2.0, 0.0, 0.0, True, 2 * theta)  # 0.5 s calm: it ends
@@ -196,13 +196,13 @@ def test_before_trust_a_broken_loop_holds_theta_hat_until_settled():
     theta = np.array([1.0, 2.0])
     _calm(rec, 0.0, 0.3, theta, df=0.5, e=0.1)  # in the loop, a model still wrong: not calm
     assert rec.begin('force_transient', 0.3, 2 * theta) is None and not rec.frozen
-    held = rec.begin('safe_mode', 0.31, theta, loop_broken=True)
+    held = rec.begin('safe_mode', 0.31, theta)
     np.testing.assert_array_equal(held, theta)
     assert rec.frozen and rec.provisional
     _calm(rec, 0.4, 0.89, theta, df=2.0, e=0.2)  # settled from 0.4, not calm
     assert rec.frozen
     assert rec.note(0.9, 2.0, 0.2, True, theta) and not rec.frozen and not rec.has_trusted
-    rec.begin('stall', 1.0, theta, loop_broken=True)
+    rec.begin('stall', 1.0, theta)
     _calm(rec, 1.0, 1.0 + SETTLE_AFTER_S - 0.01, theta, df=5.0, e=0.3)  # never settled
     assert rec.frozen
     assert rec.note(1.0 + SETTLE_AFTER_S, 5.0, 0.3, True, theta) and not rec.frozen
@@ -211,7 +211,7 @@ def test_before_trust_a_broken_loop_holds_theta_hat_until_settled():
 def test_out_of_the_force_loop_a_broken_loop_only_counts_before_trust():
     rec = Recovery(2, RecoveryConfig(calm_time=0.5))
     _calm(rec, 0.0, 0.3, np.ones(2), loop=False)  # an approach
-    assert rec.begin('safe_mode', 0.3, np.ones(2), loop_broken=True) is None
+    assert rec.begin('safe_mode', 0.3, np.ones(2)) is None
     assert rec.counts['safe_mode'] == 1 and not rec.frozen
 
 
@@ -221,7 +221,7 @@ def test_an_episode_that_never_calms_ends_settled_after_settle_after_s():
     theta = np.array([1.0, 2.0])
     _calm(rec, 0.0, 0.51, theta)
     assert rec.has_trusted
-    rec.begin('stall', 1.0, theta, loop_broken=True)
+    rec.begin('stall', 1.0, theta)
     _calm(rec, 1.0, 1.0 + SETTLE_AFTER_S, theta, df=0.5, e=0.1)  # settled, never calm
     assert rec.frozen
     _calm(rec, 1.0 + SETTLE_AFTER_S, 1.0 + SETTLE_AFTER_S + 0.51, theta, df=0.5, e=0.1)

@@ -108,7 +108,7 @@ class BlendedReference:
         self._tb = t_blend  # the current blend's duration
         self._offsets = np.zeros((2, 3))  # rows dp_W, dv_W
         self._corr = np.zeros((2, 3))  # correct_from's offsets from the blended reference
-        self._corr_tau, self._corr_tb = 0.0, 0.0  # its start and duration (0: none)
+        self._corr_tau = -math.inf  # its start (-inf: none)
         self._corr_tp = 0.0  # the duration of its position part
 
     def _base_rows(self, tau: float) -> np.ndarray:
@@ -135,12 +135,11 @@ class BlendedReference:
         rows, t = self._base_rows(tau), tau - self.tau_b
         if not (self._tb <= 0.0 or t >= self._tb):  # blending (blend_start)
             rows += _hermite(t, self._tb).dot(self._offsets)
-        t = tau - self._corr_tau
-        if self._corr_tb > 0.0 and t < self._corr_tb:  # a correction (correct_from)
-            if self._corr_tp > 0.0 and t < self._corr_tp:
-                rows += _hermite(t, self._corr_tp)[:, 0:1] * self._corr[0]
-            if t < CORRECT_VEL_S:
-                rows += _hermite(t, CORRECT_VEL_S)[:, 1:2] * self._corr[1]
+        t = tau - self._corr_tau  # a correction (correct_from); inf without one
+        if 0.0 <= t < CORRECT_VEL_S:
+            rows += _hermite(t, CORRECT_VEL_S)[:, 1:2] * self._corr[1]
+        if 0.0 <= t < self._corr_tp:
+            rows += _hermite(t, self._corr_tp)[:, 0:1] * self._corr[0]
         return rows
 
     def start_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray,
@@ -151,7 +150,7 @@ class BlendedReference:
         self._offsets = np.array((self.dp_W, self.dv_W))
         self.tau_b = tau
         self._tb = self.t_blend if blend_s is None else blend_s
-        self._corr_tb = 0.0  # a new blend replaces a correction
+        self._corr_tau = -math.inf  # a new blend replaces a correction
 
     def correct_from(self, tau: float, x_W: np.ndarray, xdot_W: np.ndarray) -> None:
         """
@@ -169,7 +168,7 @@ class BlendedReference:
         1 s of NaN joint states had left the arm 17 cm off, met the sine going out to its end:
         the reference stayed within 1 cm of full reach for 1 s (test_recovery.py).
         """
-        self._corr_tb = 0.0
+        self._corr_tau = -math.inf  # the reference without the correction under way
         now = self.rows(tau)
         self._corr = np.array((self.P_t @ (x_W - now[0]), self.P_t @ (xdot_W - now[1])))
         T_p = self.t_blend
@@ -177,7 +176,6 @@ class BlendedReference:
             dp = float(np.linalg.norm(self._corr[0]))
             T_p = min(max(math.sqrt(2.0 * H0_PEAK * dp / CORRECT_ACCEL), CORRECT_VEL_S), T_p)
         self._corr_tau, self._corr_tp = tau, T_p
-        self._corr_tb = max(T_p, CORRECT_VEL_S)
 
     def switch(self, tau: float, *, sine: SineReference | None = None,
                x_hold_W: np.ndarray | None = None, path: Any = None, release: bool = False,

@@ -174,7 +174,7 @@ class ControllerRuntime(RuntimeInterface):
         if self.mode in (Mode.WAITING, Mode.SAFE):
             if self._restarted:
                 self._restarted = False
-                self._begin('restart', t, broken=True)
+                self._begin('restart', t)
             self._start(touching)
         else:
             self._switch(touching, f_W, t)
@@ -293,17 +293,12 @@ class ControllerRuntime(RuntimeInterface):
         self.counters['stalls'] += 1
         self.last_stall_s = gap
         if gap > self._params.runtime.state_timeout:
-            self._begin('stall', t, broken=True)
+            self._begin('stall', t)
         return True
 
-    def _begin(self, kind: str, t: float, broken: bool = False) -> None:
-        """
-        Open an episode; theta_hat takes the estimate it holds (recovery.py), if any.
-
-        ``broken``: the loop itself was broken longer than state_timeout (safe mode, a restart,
-        a stall): before a trusted estimate, theta_hat holds its value (provisional).
-        """
-        theta = self.recovery.begin(kind, t, self.ctrl.theta_hat, broken)
+    def _begin(self, kind: str, t: float) -> None:
+        """Open an episode; theta_hat takes the estimate it holds (recovery.py), if any."""
+        theta = self.recovery.begin(kind, t, self.ctrl.theta_hat)
         if theta is not None:
             self.ctrl.theta_hat = theta.copy()
 
@@ -318,7 +313,7 @@ class ControllerRuntime(RuntimeInterface):
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
-            self._begin('safe_mode', t, broken=True)  # theta_hat may change: latch the held one
+            self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
             self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last)
             self._clock.pause(s.t)  # the reference pauses (_start)
             self._motion.pause_path()

@@ -28,13 +28,14 @@ theta_hat ran from [1.30, 0.90] to [3.37, 2.78] in under a second after a 202 ms
 * before the first calm stretch there is nothing trusted, and the start-up is the transient
   adaptation is for: an episode then only counts, adaptation going on (its error
   saturated), unless the loop itself was broken for longer than the inputs may be old
-  (safe mode, a restart, a stall longer than ``state_timeout``: the caller says) while in
-  the force loop. Such an episode is *provisional*: theta_hat holds the estimate that held
-  the tool on the surface up to then, until ``calm_time`` settled (at most
+  (:data:`LOOP_KINDS`: safe mode, a restart, a stall, which the runtime opens only when
+  longer than ``state_timeout``) while in the force loop. Such an episode is *provisional*:
+  theta_hat holds the estimate that held the tool on the surface up to then, until
+  ``calm_time`` settled (at most
   :data:`SETTLE_AFTER_S`: it is a guess, nothing trusted backs it). Without it, three 300 ms
   hiccups of the whole machine in the first 2 s (sim and controller frozen together: the
   sim's catch-up drops the arm 2 cm into the surface each time) took theta_hat from
-  [1.18, 0.79] to its projection bound, the tool lifted off, in 4 of 4 runs over DDS.
+  [1.18, 0.79] to its projection bound, the tool lifted off, in 5 of 5 runs over DDS.
 
 Time is an argument: the caller passes the tick's time; nothing here reads a clock.
 """
@@ -46,11 +47,14 @@ import numpy as np
 
 from ..config.groups import RecoveryConfig, RecoveryConfigError
 
-__all__ = ['EPISODE_KINDS', 'Recovery', 'RecoveryConfig', 'RecoveryConfigError', 'SETTLE_AFTER_S']
+__all__ = ['EPISODE_KINDS', 'LOOP_KINDS', 'Recovery', 'RecoveryConfig', 'RecoveryConfigError',
+           'SETTLE_AFTER_S']
 
 #: what starts an episode (the /diagnostics counters are ``episodes_<kind>``)
 EPISODE_KINDS = ('stall', 'restart', 'contact_loss', 'safe_mode', 'force_transient',
                  'tracking_fault')
+#: the loop itself broke (not the model): before trust, such an episode holds theta_hat
+LOOP_KINDS = ('stall', 'restart', 'safe_mode')
 SETTLE_AFTER_S = 5.0  # an episode this long ends once settled (not only calm), s
 
 
@@ -106,15 +110,13 @@ class Recovery:
         """Say whether adaptation is frozen: an episode under way and an estimate to hold."""
         return bool(self.episode) and (self.has_trusted or self.provisional) and self.cfg.enabled
 
-    def begin(self, kind: str, t: float, theta_hat: np.ndarray,
-              loop_broken: bool = False) -> np.ndarray | None:
+    def begin(self, kind: str, t: float, theta_hat: np.ndarray) -> np.ndarray | None:
         """
         Open an episode of ``kind`` at time ``t`` (one already under way goes on, counted once).
 
-        ``theta_hat`` is the estimate now; ``loop_broken``: the loop itself was broken for
-        longer than the inputs may be old. Returns the estimate theta_hat must take: the
-        trusted one; before there is one, ``theta_hat`` itself when ``loop_broken`` in the
-        force loop (provisional); None when adaptation goes on.
+        ``theta_hat`` is the estimate now. Returns the estimate theta_hat must take: the
+        trusted one; before there is one, ``theta_hat`` itself for a :data:`LOOP_KINDS`
+        episode met in the force loop (provisional); None when adaptation goes on.
         """
         self._calm_since = self._settled_since = self._window_since = math.nan
         if not self.episode:
@@ -122,7 +124,7 @@ class Recovery:
             self.counts[kind] += 1
         if self.has_trusted:
             np.copyto(self.held, self.trusted)
-        elif loop_broken and self._in_loop and not self.provisional:
+        elif kind in LOOP_KINDS and self._in_loop and not self.provisional:
             self.provisional = True  # also when a counting episode is under way
             self.t_begin = t
             np.copyto(self.held, theta_hat)

@@ -71,6 +71,18 @@ def test_integer_is_accepted_as_double(controller):
     assert _set(client, f_d=1.0)[0].successful
 
 
+def test_the_singularity_guard_is_set_live_and_off_with_an_integer_zero(controller):
+    """``ros2 param set ... singular_sigma 0`` (an integer) turns the damped inverse off."""
+    node, client = controller
+    assert _get(client, 'singular_sigma') == 0.1
+    (result,) = _set(client, singular_sigma=0)
+    assert result.successful, result.reason
+    assert node.params.law.singular_sigma == 0.0
+    assert node.runtime.ctrl.gains.singular_sigma == 0.0  # the law in use has it
+    assert _set(client, singular_sigma=0.1)[0].successful
+    assert node.params.law.singular_sigma == 0.1
+
+
 def test_integer_normal_is_normalised(controller):
     node, client = controller
     (result,) = _set(client, n=[0, 2, 0])
@@ -95,6 +107,8 @@ def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
     ('n', [0.0, 0.0, 0.0]),
     ('n', [0.0, math.nan, 0.0]),
     ('k_d', -5.0),
+    ('singular_sigma', -0.1),
+    ('singular_sigma', math.inf),
     ('rate_hz', 500.0),
 ])
 def test_bad_value_is_rejected_and_nothing_changes(controller, name, value):

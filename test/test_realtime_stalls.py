@@ -107,6 +107,8 @@ def test_every_freeze_drops_the_arm_on_the_plant_watchdog(run):
     assert timeouts >= len(FREEZES_MS), run['rig'].sim.tail()
     assert run['ctrl1']['episodes_stall'] >= len(FREEZES_MS)  # seen in its own tick times
     assert run['ctrl1']['stalls'] >= len(FREEZES_MS)
+    # trusted by then: the freezes held it, none was provisional; the sine stays off full reach
+    assert run['ctrl1']['episode_provisional'] is False and run['ctrl1']['singular_ticks'] == 0
 
 
 @pytest.mark.parametrize('k', range(len(FREEZES_MS)), ids=[f'{m:.0f}ms' for m in FREEZES_MS])

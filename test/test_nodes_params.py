@@ -14,7 +14,7 @@ import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
-from ros_helpers import domain_id, Spun
+from ros_helpers import domain_id, Spun, wait_for
 from sim_node.sim_node import SimNode
 
 
@@ -78,7 +78,8 @@ def test_the_singularity_guard_is_set_live_and_off_with_an_integer_zero(controll
     (result,) = _set(client, singular_sigma=0)
     assert result.successful, result.reason
     assert node.params.law.singular_sigma == 0.0
-    assert node.runtime.ctrl.gains.singular_sigma == 0.0  # the law in use has it
+    wait_for(lambda: node.runtime.ctrl.gains.singular_sigma == 0.0,  # installed at a tick
+             'the law in use to have singular_sigma 0', timeout=TIMEOUT)
     assert _set(client, singular_sigma=0.1)[0].successful
     assert node.params.law.singular_sigma == 0.1
 

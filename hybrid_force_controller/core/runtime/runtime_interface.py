@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .inputs import InputError
+from .inputs import InputError, JointSample
 from .surface import NormalStatus
 from .tare import Tare
 from ..config.params import ControllerParams
@@ -123,6 +123,17 @@ class RuntimeInterface:
     def state_stamp(self) -> float:
         """Stamp of the latest joint state on the caller's clock, s (-inf before the first)."""
         return -math.inf if self._in.state is None else self._in.state.t
+
+    @property
+    def joint_sample(self) -> JointSample | None:
+        """Return the latest accepted joint state (model order, stamp on the caller's clock)."""
+        return self._in.state
+
+    @property
+    def wrench_stamp(self) -> float:
+        """Stamp of the latest accepted wrench on the caller's clock, s (NaN before the first)."""
+        w = self._in.wrench
+        return math.nan if w is None else w.t
 
     @property
     def f_d_W(self) -> np.ndarray:

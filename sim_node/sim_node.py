@@ -383,7 +383,7 @@ def main(args: list[str] | None = None) -> int:
         node = SimNode()
         node.schedule_this_thread()
         return node
-    return run_node(make_node, 'sim', args)
+    return run_node(make_node, 'sim', args, cell=True)
 
 
 if __name__ == '__main__':

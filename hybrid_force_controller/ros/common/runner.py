@@ -11,6 +11,7 @@ timeout busy-waits in the Jazzy EventsExecutor), so the node is destroyed before
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
 from typing import Any, Callable, Sequence
@@ -22,10 +23,13 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
+from .cell import cell_domains, CellDomains, start_gateway
+
 __all__ = ['EXECUTORS', 'make_executor', 'print_help', 'run_node', 'spin_until_signal',
            'wants_help']
 
 EXECUTORS = ('events', 'single_threaded')
+GATEWAY_CHECK_S = 2.0  # a cell node starts the gateway again within this long if it ended
 SPIN_SLICE_S = 0.25  # a signal is acted on within this long even when nothing else runs
 README = ('README.md of hybrid_force_controller (source tree, or share/hybrid_force_controller/'
           'README.md once installed): sections "ROS 2 usage", "Topics and QoS", "Parameters"')
@@ -79,14 +83,38 @@ def print_help(executable: str, summary: str, parameters: Sequence[tuple[str, st
     print('\n'.join(lines))
 
 
-def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None = None) -> int:
+def _keep_gateway(node: Node, domains: CellDomains) -> None:
+    """Start the cell's gateway now, and again whenever it is found gone (node thread)."""
+    started: list[int] = []
+
+    def check() -> None:
+        for pid in list(started):  # reap the ones that ended (no zombie)
+            if os.waitpid(pid, os.WNOHANG)[0]:
+                started.remove(pid)
+        pid = start_gateway(domains)
+        if pid is not None:
+            started.append(pid)
+    check()
+    node.create_timer(GATEWAY_CHECK_S, check)
+
+
+def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None = None,
+             cell: bool = False) -> int:
     """
     Init rclpy, build the node and spin it until SIGINT/SIGTERM.
 
-    Returns 0 then, 1 (with the reason on stderr) if the node cannot be configured (a
-    ValueError subclass or a ParameterException).
+    A ``cell`` node (the sim, the controller) joins the cell domain and makes sure the cell's
+    gateway runs (cell.py; ``HFC_CELL_DOMAIN_ID``): it starts it after the node is built, and
+    again within ``GATEWAY_CHECK_S`` if it ended. Returns 0 then, 1 (with the reason on
+    stderr) if the node cannot be configured (a ValueError subclass or a ParameterException).
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        domains = cell_domains() if cell else None
+    except ValueError as exc:
+        print(f'{label}: {exc}', file=sys.stderr)
+        return 1
+    domain = None if domains is None else domains.node_domain
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO, domain_id=domain)
     try:
         node = make_node()
     except (ValueError, ParameterException) as exc:
@@ -97,6 +125,8 @@ def run_node(make_node: Callable[[], Node], label: str, args: list[str] | None =
         rclpy.try_shutdown()
         return 0
     executor = None
+    if domains is not None and domains.isolated:
+        _keep_gateway(node, domains)
     try:
         kind = node.get_parameter('executor').value if node.has_parameter('executor') \
             else 'events'

@@ -22,7 +22,8 @@ and ``~/path_status``, ``~/path_progress``, ``~/markers`` (path_topics.py).
 The names are resolved here (remappings included) and the control thread's node uses them
 as they are. QoS: :mod:`.qos`. ``/diagnostics`` (1 Hz) adds the input-to-command delay
 (joint-state stamp to effort published), the tick period, the commands/s and how long each
-kind of callback held the control thread (``loop_hold_max_ms``, ``hold_*``).
+kind of callback held the control thread (``loop_hold_max_ms``, ``hold_*``). A flight recorder
+keeps the loop's last 2 s and writes them to ``flight_recorder_dir`` on a fault (flight_dumps.py).
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ from std_msgs.msg import String
 
 from .control_loop import ControlLoop, LoopSettings
 from .diagnostics import clock_offset_warnings, controller_status, EVENT_COUNTERS, loop_report
+from .flight_dumps import FlightDumps
 from .path_topics import PathTopics
 from .task_interface import TaskInterface
 from .telemetry import ControllerOutputs, TOPIC_COMMANDS
@@ -87,6 +89,7 @@ class ControllerNode(LifecycleNode):
         self.params = None  # the accepted parameter set (the loop installs it at a tick)
         self.model: RobotModel | None = None
         self.loop: ControlLoop | None = None
+        self.flight: FlightDumps | None = None  # the flight recorder's dumps (None: off)
         self._description_msg: str | None = None
         self.task: TaskInterface | None = None  # ~/reference, ~/target_wrench, ~/tare
         steady = Clock(clock_type=ClockType.STEADY_TIME)  # drains in lockstep too
@@ -186,7 +189,8 @@ class ControllerNode(LifecycleNode):
         return LoopSettings(topics, sensor_in_qos(nv['sensor_qos'], nv['sensor_depth']),
                             1.0 / self.runtime.params.runtime.rate_hz, self._tick_mode(),
                             nv['executor'], bool(self.get_parameter('use_sim_time').value),
-                            self._thread_priority(), nv['cpu_affinity'])
+                            self._thread_priority(), nv['cpu_affinity'],
+                            nv['flight_recorder_dir'] != '', nv['flight_recorder_max_force'])
 
     def _thread_priority(self) -> int:
         """Return ``thread_priority``, or 0 with sim time (a lockstep loop runs flat out)."""
@@ -214,6 +218,9 @@ class ControllerNode(LifecycleNode):
         gc.freeze()  # the start-up heap is never scanned again: shorter collector passes
         self.loop = ControlLoop(self, self.runtime, self._loop_settings())
         self.loop.telemetry_every = self._decimation()
+        if self.loop.recorder is not None:
+            self.flight = FlightDumps(self.node_values['flight_recorder_dir'], self.model,
+                                      self.get_logger().warning)
         self.state_label = 'inactive'
         self.get_logger().info(f"configured: {self.model.n} joints, base '{self.model.base_link}'"
                                f", inputs {self.loop.settings.topics['joint_states']}, "
@@ -247,6 +254,9 @@ class ControllerNode(LifecycleNode):
         if self.loop is not None:
             self.loop.stop()
             self.loop = None
+        if self.flight is not None:  # a dump being written finishes (its path is logged)
+            self.flight.join()
+            self.flight = None
         if self.task is not None:
             self.task.destroy()
             self.task = None
@@ -281,6 +291,8 @@ class ControllerNode(LifecycleNode):
         if self.loop is not None:
             self.loop.stop()
             self.loop = None
+        if self.flight is not None:  # a dump being written finishes (its path is logged)
+            self.flight.join()
         super().destroy_node()
 
     # ------------------------------------------------------------------ callbacks
@@ -314,6 +326,8 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().warning(warning)
         while loop.events:
             self._log_event(loop.events.popleft())
+        if self.flight is not None and loop.recorder is not None:
+            self.flight.poll(loop.recorder)  # logs 'flight recorder: why at t=...: path'
 
     def _log_event(self, event: tuple) -> None:
         kind, *rest = event
@@ -369,6 +383,7 @@ HELP_PARAMETERS = (
     ('tick_mode', "'auto' (default: joint_state, timer with sim time), 'timer', 'joint_state'"),
     ('thread_priority', 'SCHED_FIFO priority of the control thread (default 50; 0: none)'),
     ('cpu_affinity', 'CPUs of the control thread (default []: any)'),
+    ('flight_recorder_dir', "where the last 2 s go when something goes wrong ('': off)"),
     ('autostart', 'configure + activate at start (default true)'),
     ('executor', "'events' (default) or 'single_threaded'"),
     ('sensor_qos', "'best_effort' (default) or 'reliable' inputs"),

@@ -2,40 +2,20 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 import signal
 import subprocess
-import sys
 from typing import Iterable
+
+from ..common.package_files import find_config, LOOPBACK_PROFILE, PKG, PROFILE_VAR
 
 __all__ = ['LOOPBACK_PROFILE', 'PAPER_MASSES_OFF', 'PKG', 'PROFILE_VAR', 'cell_env', 'find_config',
            'stop_processes', 'use_loopback_dds']
 
-PKG = 'hybrid_force_controller'
 # the sim's link masses for the paper's arm in demo and bench: 50 % off the URDF's [1.3, 0.9],
 # as a real arm differs from its model (the controller starts from the URDF's and learns them)
 PAPER_MASSES_OFF = '[0.65, 1.35]'
-# Fast DDS 2.x reads its default XML profile from this variable (rmw_fastrtps loads it first)
-PROFILE_VAR = 'FASTRTPS_DEFAULT_PROFILES_FILE'
-LOOPBACK_PROFILE = 'fastdds_loopback.xml'
 # set beside PROFILE_VAR when use_loopback_dds chose the profile (cell_env then removes both)
 _CHOSEN_HERE = 'HFC_LOOPBACK_DDS_CHOSEN'
-
-
-def find_config(name: str = 'params.yaml') -> Path:
-    """config/NAME from the source tree, the pip prefix or the ament index."""
-    source_tree = Path(__file__).resolve().parents[3]  # <tree>/<package>/ros/programs/.
-    candidates = [source_tree / 'config' / name,
-                  Path(sys.prefix) / 'share' / PKG / 'config' / name]
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        candidates.append(Path(get_package_share_directory(PKG)) / 'config' / name)
-    except Exception:  # noqa: BLE001 - not in an ament index: other candidates remain
-        pass
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise FileNotFoundError(f'config/{name} not found in {[str(c) for c in candidates]}')
 
 
 def use_loopback_dds(environ: dict | None = None) -> str | None:

@@ -1,0 +1,290 @@
+"""
+The cell's gateway: the cell domain's nodes, topics and services shown on the user's domain.
+
+``python -m hybrid_force_controller.ros.common.gateway --public P --cell C`` (started by the
+first node of a cell, :func:`.cell.start_gateway`; one per cell, an abstract-socket lock
+keeps it single). It has one participant on each domain, both UDP only (the package's
+UDP-only profile, config/fastdds_udp.xml), so a reader joining the user's domain never meets a cell participant, and
+the gateway itself never opens a shared-memory port (no 333 ms health check). Every
+``SCAN_S`` it reads the cell's graph and keeps, on the user's domain:
+
+* **nodes**: one node of the same name and namespace for each node of the cell (``ros2 node
+  list``, ``ros2 param``, ``ros2 lifecycle`` find it), hosting
+* **services**: each service of that node, forwarded to the cell and answered with the
+  cell's response (parameters, lifecycle, ``~/tare`` ...);
+* **topics the cell publishes**: a publisher of the same name, type and QoS, fed by a
+  subscription in the cell that exists only while someone on the user's domain subscribes
+  (so an unwatched cell sends the gateway nothing: the 1 kHz joint states and efforts cost
+  the cell nothing until ``ros2 bag record`` asks for them);
+* **topics the cell only subscribes**: a subscription on the user's domain whose messages
+  are published into the cell (``~/path``, ``~/reference``, ``~/target_wrench``; a
+  ``robot_description`` from outside). A topic the cell publishes is never fed from outside:
+  a user's ``joint_states`` or ``effort_controller/commands`` cannot reach the loop.
+
+Messages pass as serialized bytes (no conversion). The gateway ends on SIGINT/SIGTERM, or
+``IDLE_EXIT_S`` after the last node of the cell has gone.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Any, Sequence
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from .cell import CellDomains, gateway_lock
+
+__all__ = ['Gateway', 'main']
+
+SCAN_S = 0.25
+IDLE_EXIT_S = 2.0
+SERVICE_TIMEOUT_S = 10.0
+GATEWAY_NODE = '_hfc_gateway'
+NO_TYPE_SERVICE = [Parameter('start_type_description_service', value=False)]
+
+
+def import_type(name: str) -> Any:
+    """Return the Python class of a ROS type name ``pkg/msg/Name`` or ``pkg/srv/Name``."""
+    pkg, kind, cls = name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.{kind}'), cls)
+
+
+def mirror_qos(infos: Sequence[Any]) -> QoSProfile:
+    """QoS that matches every endpoint of ``infos``: reliable if one is, durable if one is."""
+    reliable = any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+    durable = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=100 if not durable else 10,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if durable else DurabilityPolicy.VOLATILE)
+
+
+def _gateway_node(node_name: str) -> bool:
+    return node_name == GATEWAY_NODE
+
+
+class Graph:
+    """The cell's graph, read once a scan: nodes, and per topic its publishers' and readers'."""
+
+    def __init__(self, node: Node) -> None:
+        self.nodes = [(n, ns) for n, ns in node.get_node_names_and_namespaces()
+                      if not _gateway_node(n)]
+        self.types: dict[str, str] = {}
+        self.pub_infos: dict[str, list] = {}
+        self.sub_infos: dict[str, list] = {}
+        self.services: dict[tuple[str, str], list[tuple[str, str]]] = {}
+        for name, ns in self.nodes:
+            try:
+                pubs = node.get_publisher_names_and_types_by_node(name, ns)
+                subs = node.get_subscriber_names_and_types_by_node(name, ns)
+                self.services[(name, ns)] = [
+                    (s, t[0]) for s, t in node.get_service_names_and_types_by_node(name, ns)]
+            except Exception:  # noqa: BLE001 - the node left between the two calls
+                continue
+            for topic, types in pubs + subs:
+                self.types.setdefault(topic, types[0])
+        for topic in self.types:
+            self.pub_infos[topic] = [i for i in node.get_publishers_info_by_topic(topic)
+                                     if not _gateway_node(i.node_name)]
+            self.sub_infos[topic] = [i for i in node.get_subscriptions_info_by_topic(topic)
+                                     if not _gateway_node(i.node_name)]
+
+
+class Gateway:
+    """The two participants and the mirrors between them (module docstring)."""
+
+    def __init__(self, domains: CellDomains) -> None:
+        self.domains = domains
+        self.ctx_cell, self.ctx_user = Context(), Context()
+        rclpy.init(context=self.ctx_cell, domain_id=domains.cell,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(context=self.ctx_user, domain_id=domains.public,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        kw = dict(start_parameter_services=False, enable_rosout=False,
+                  parameter_overrides=NO_TYPE_SERVICE)
+        self.cell = Node(GATEWAY_NODE, context=self.ctx_cell, **kw)
+        self.user = Node(GATEWAY_NODE, context=self.ctx_user, **kw)
+        self.exec_cell = SingleThreadedExecutor(context=self.ctx_cell)
+        self.exec_user = SingleThreadedExecutor(context=self.ctx_user)
+        self.exec_cell.add_node(self.cell)
+        self.exec_user.add_node(self.user)
+        self.nodes: dict[tuple[str, str], Node] = {}  # user-side twins of the cell's nodes
+        self.services: dict[str, tuple[Any, Any]] = {}  # name: (server, client)
+        self.out: dict[str, list] = {}  # cell -> user: [publisher, subscription or None]
+        self.into: dict[str, tuple[Any, Any]] = {}  # user -> cell: (subscription, publisher)
+        self.last_seen = time.monotonic()
+        self.seen_any = False
+        self.lock = threading.Lock()
+        self.user.create_timer(SCAN_S, self._scan_guarded)
+
+    # ------------------------------------------------------------------ the scan
+    def _scan_guarded(self) -> None:
+        try:
+            with self.lock:
+                self.scan()
+        except Exception as exc:  # noqa: BLE001 - a graph that changed mid-scan: next scan
+            self.user.get_logger().warning(f'scan: {exc!r}', throttle_duration_sec=5.0)
+
+    def scan(self) -> None:
+        """Bring the mirrors in line with the cell's graph."""
+        graph = Graph(self.cell)
+        if graph.nodes:
+            self.last_seen, self.seen_any = time.monotonic(), True
+        self._sync_nodes(graph)
+        published = {t for t, infos in graph.pub_infos.items() if infos}
+        subscribed_only = {t for t, infos in graph.sub_infos.items()
+                           if infos and t not in published}
+        self._sync_into(graph, subscribed_only)  # first: a topic that turned published
+        self._sync_out(graph, published)  # must not see the gateway's own reader as a user
+
+    def _sync_nodes(self, graph: Graph) -> None:
+        for key in [k for k in self.nodes if k not in graph.services]:
+            self.exec_user.remove_node(self.nodes[key])
+            self.nodes.pop(key).destroy_node()
+        wanted: dict[str, tuple[tuple[str, str], str]] = {}
+        for key, services in graph.services.items():
+            if key not in self.nodes and not key[0].startswith('_'):
+                name, ns = key
+                self.nodes[key] = Node(name, namespace=ns, context=self.ctx_user,
+                                       start_parameter_services=False, enable_rosout=False,
+                                       parameter_overrides=NO_TYPE_SERVICE)
+                self.exec_user.add_node(self.nodes[key])
+            if key in self.nodes:
+                wanted.update({s: (key, t) for s, t in services})
+        for name in [s for s in self.services if s not in wanted]:
+            server, client = self.services.pop(name)
+            server.destroy()
+            self.cell.destroy_client(client)
+        for name, (key, type_name) in wanted.items():
+            if name not in self.services:
+                self._add_service(self.nodes[key], name, type_name)
+
+    def _add_service(self, twin: Node, name: str, type_name: str) -> None:
+        try:
+            srv_type = import_type(type_name)
+        except (ImportError, AttributeError, ValueError):
+            return  # a type this Python cannot load: not shown
+        client = self.cell.create_client(srv_type, name)
+
+        def forward(request: Any, response: Any) -> Any:
+            future = client.call_async(request)
+            done = threading.Event()
+            future.add_done_callback(lambda _: done.set())
+            if done.wait(SERVICE_TIMEOUT_S) and future.result() is not None:
+                return future.result()
+            return response
+        self.services[name] = (twin.create_service(srv_type, name, forward), client)
+
+    def _sync_out(self, graph: Graph, published: set[str]) -> None:
+        for topic in [t for t in self.out if t not in published]:
+            pub, sub = self.out.pop(topic)
+            if sub is not None:
+                self.cell.destroy_subscription(sub)
+            self.user.destroy_publisher(pub)
+        for topic in published:
+            if topic not in self.out:
+                msg_type = self._type(graph, topic)
+                if msg_type is None:
+                    continue
+                qos = mirror_qos(graph.pub_infos[topic])
+                self.out[topic] = [self.user.create_publisher(msg_type, topic, qos), None]
+            entry = self.out[topic]
+            watched = entry[0].get_subscription_count() > 0
+            if watched and entry[1] is None:
+                pub = entry[0]
+                entry[1] = self.cell.create_subscription(
+                    pub.msg_type, topic, pub.publish, mirror_qos(graph.pub_infos[topic]),
+                    raw=True)
+            elif not watched and entry[1] is not None:
+                self.cell.destroy_subscription(entry[1])
+                entry[1] = None
+
+    def _sync_into(self, graph: Graph, subscribed_only: set[str]) -> None:
+        for topic in [t for t in self.into if t not in subscribed_only]:
+            sub, pub = self.into.pop(topic)
+            self.user.destroy_subscription(sub)
+            self.cell.destroy_publisher(pub)
+        for topic in subscribed_only - set(self.into):
+            msg_type = self._type(graph, topic)
+            if msg_type is None:
+                continue
+            qos = mirror_qos(graph.sub_infos[topic])
+            pub = self.cell.create_publisher(msg_type, topic, qos)
+            sub = self.user.create_subscription(msg_type, topic, pub.publish, qos, raw=True)
+            self.into[topic] = (sub, pub)
+
+    @staticmethod
+    def _type(graph: Graph, topic: str) -> Any:
+        try:
+            return import_type(graph.types[topic])
+        except (ImportError, AttributeError, ValueError):
+            return None
+
+    # ------------------------------------------------------------------ running
+    def idle(self) -> bool:
+        """True once the cell had nodes and has had none for ``IDLE_EXIT_S``."""
+        return self.seen_any and time.monotonic() - self.last_seen > IDLE_EXIT_S
+
+    def run(self, stop: threading.Event, startup_s: float = 30.0) -> None:
+        """Spin both sides until ``stop``, the cell idles, or no node came within ``startup_s``."""
+        thread = threading.Thread(target=self._spin_cell, args=(stop,), name='cell',
+                                  daemon=True)
+        thread.start()
+        t0 = time.monotonic()
+        while not stop.is_set() and not self.idle():
+            if not self.seen_any and time.monotonic() - t0 > startup_s:
+                break
+            self.exec_user.spin_once(timeout_sec=0.1)
+        stop.set()
+        thread.join(2.0)
+
+    def _spin_cell(self, stop: threading.Event) -> None:
+        while not stop.is_set():
+            self.exec_cell.spin_once(timeout_sec=0.1)
+
+    def close(self) -> None:
+        """Destroy both sides' nodes and contexts."""
+        self.exec_user.shutdown(timeout_sec=1.0)
+        self.exec_cell.shutdown(timeout_sec=1.0)
+        for node in [*self.nodes.values(), self.user, self.cell]:
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.ctx_user)
+        rclpy.try_shutdown(context=self.ctx_cell)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the gateway of one cell; 0 at its end, 0 at once if another holds the lock."""
+    ap = argparse.ArgumentParser(prog='gateway', description=__doc__.splitlines()[1].strip())
+    ap.add_argument('--public', type=int, required=True, help="the user's ROS_DOMAIN_ID")
+    ap.add_argument('--cell', type=int, required=True, help='the cell domain')
+    args = ap.parse_args(argv)
+    os.sched_setaffinity(0, range(os.cpu_count() or 1))  # not the control thread's CPUs
+    domains = CellDomains(args.public, args.cell)
+    lock = gateway_lock(domains)
+    if lock is None:
+        return 0  # another node of the cell started it first
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    gateway = Gateway(domains)
+    try:
+        gateway.run(stop)
+    finally:
+        gateway.close()
+        lock.close()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

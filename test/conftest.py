@@ -35,7 +35,8 @@ import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any t
 # not listed here is serial by default: a new real-time test never runs beside another one.
 OFFLINE_MODULES = {
     'test_analysis', 'test_cdr', 'test_closed_loop_offline', 'test_control_law', 'test_engine',
-    'test_filters_env', 'test_flake8', 'test_force_target_and_tare', 'test_input_plausibility',
+    'test_filters_env', 'test_flake8', 'test_flight_recorder', 'test_force_target_and_tare',
+    'test_input_plausibility',
     'test_layers', 'test_loop_stats', 'test_margin', 'test_model_construction',
     'test_model_oracle', 'test_moving_normal',
     'test_mujoco_demo_args', 'test_mujoco_plant', 'test_normal_closed_loop',

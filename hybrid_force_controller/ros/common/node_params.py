@@ -12,7 +12,8 @@ import os
 from ...core.config.params import ParamSpec as _S
 
 __all__ = ['CONTROLLER_NODE_SCHEMA', 'CPU_AFFINITY_SPEC', 'EXECUTOR_SPEC', 'SENSOR_QOS',
-           'THREAD_PRIORITY_SPEC', 'TICK_MODES', 'check_choice', 'check_cpus']
+           'THREAD_PRIORITY_SPEC', 'TICK_MODES', 'check_choice', 'check_cpus',
+           'default_flight_dir']
 
 TICK_MODES = ('auto', 'timer', 'joint_state')
 SENSOR_QOS = ('best_effort', 'reliable')
@@ -28,6 +29,13 @@ THREAD_PRIORITY_SPEC = _S(
 CPU_AFFINITY_SPEC = _S(
     'cpu_affinity', 'integer_array', [],
     'CPUs the control thread may run on ([] = any).', read_only=True)
+
+
+def default_flight_dir() -> str:
+    """Return ``$ROS_HOME/hybrid_force_controller/flight`` (``~/.ros`` without ROS_HOME)."""
+    home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
+    return os.path.join(home, 'hybrid_force_controller', 'flight')
+
 
 CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
     _S('telemetry_rate_hz', 'double', 100.0,
@@ -55,6 +63,16 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
        'is kept; more keeps every sample of a burst).', 1, 1000, read_only=True),
     THREAD_PRIORITY_SPEC,
     CPU_AFFINITY_SPEC,
+    _S('flight_recorder_dir', 'string', default_flight_dir(),
+       'Directory of the flight recorder: the control thread keeps the last 2 s of its ticks '
+       '(inputs and stamps, x, x_d, f, f_d, mode, theta_hat, effort, hold time) and, on safe '
+       'mode, a force above flight_recorder_max_force, contact lost in the force loop or a '
+       'stall longer than state_timeout, the node writes them there as an MCAP bag (at most '
+       "one every 5 s; its path is logged; readable by report --t-start 0). '': off.",
+       read_only=True),
+    _S('flight_recorder_max_force', 'double', 50.0,
+       'A filtered force |f| above this (N) makes the flight recorder write its last 2 s '
+       '(0: never for the force).', 0.0, 1e6, read_only=True),
 )
 
 

@@ -17,7 +17,11 @@ controller node's thread, and meets this one only through three lock-free hand-o
   path's progress and the markers), :attr:`events` (mode changes and
   callback errors, logged by the node), :attr:`errors` (callback errors by kind) and
   :attr:`holds` (how long each callback held the thread,
-  :class:`~hybrid_force_controller.core.runtime.loop_stats.HoldStats`).
+  :class:`~hybrid_force_controller.core.runtime.loop_stats.HoldStats`), and :attr:`recorder`,
+  the flight recorder (core/runtime/flight_recorder.py; None when off): every tick writes a
+  row of its preallocated ring (about 2 us, no array made) and a trigger (safe mode, a force
+  above ``max_force``, contact lost in the force loop, a stall) appends a request to its
+  ``requests`` deque; the node takes the snapshot and writes it off this thread.
 
 This is the split realtime_tools and ros2_control make (parameters reach ``update()``
 through a real-time buffer; the update loop never publishes through a plain publisher
@@ -30,6 +34,7 @@ A refusal is reported, and the loop runs on.
 from __future__ import annotations
 
 from collections import deque
+import math
 import sys
 import threading
 import time
@@ -47,6 +52,7 @@ from ..common.loop_timing import DelayStats, RateMeter
 from ..common.runner import make_executor
 from ..common.scheduling import name_this_thread, set_thread_scheduling
 from ...core.runtime.controller_runtime import ControllerRuntime, InputError
+from ...core.runtime.flight_recorder import FlightRecorder
 from ...core.runtime.loop_stats import hold_phases, HoldStats, LoopStats
 
 __all__ = ['ControlLoop', 'LoopSettings']
@@ -57,6 +63,7 @@ SPIN_SLICE_S = 0.1
 # The GIL: a thread that wants it waits at most this long for the holder to let it go (the
 # default 5 ms would let the node's thread hold the control thread for 5 ms)
 GIL_SWITCH_S = 0.0002
+FLIGHT_S = 2.0  # the flight recorder keeps this long of ticks at rate_hz
 
 
 class LoopSettings:
@@ -64,10 +71,13 @@ class LoopSettings:
 
     def __init__(self, topics: dict[str, str], qos_in: Any, period: float, tick_mode: str,
                  executor: str, use_sim_time: bool, thread_priority: int,
-                 cpu_affinity: Sequence[int]) -> None:
+                 cpu_affinity: Sequence[int], flight_recorder: bool = False,
+                 flight_max_force: float = math.inf) -> None:
         self.topics, self.qos_in, self.period = topics, qos_in, period
         self.tick_mode, self.executor, self.use_sim_time = tick_mode, executor, use_sim_time
         self.thread_priority, self.cpu_affinity = thread_priority, tuple(cpu_affinity)
+        # the flight recorder: on or off, and the force (N) that triggers it (inf: none)
+        self.flight_recorder, self.flight_max_force = flight_recorder, flight_max_force
 
 
 class ControlLoop:
@@ -108,11 +118,25 @@ class ControlLoop:
         self._now_ns = ((lambda: self._clock.now().nanoseconds) if settings.use_sim_time
                         else time.time_ns)
         self.effort = EffortOutput(self.node, settings.topics['commands'], runtime.model.n)
+        self.recorder = self._make_recorder()
         self._make_endpoints()
         self._stop = Future()
         sys.setswitchinterval(GIL_SWITCH_S)
         self._thread = threading.Thread(target=self._run, name='control', daemon=True)
         self._thread.start()
+
+    @property
+    def _max_force(self) -> float:
+        """Return the force that triggers the flight recorder, N (inf: none; 0 means none)."""
+        return self.settings.flight_max_force or math.inf
+
+    def _make_recorder(self) -> FlightRecorder | None:
+        """Return the flight recorder of FLIGHT_S at the rate (None when it is off)."""
+        s, rt = self.settings, self.runtime
+        if not s.flight_recorder:
+            return None
+        return FlightRecorder(rt.model.n, rt.theta_hat.size, max(2, round(FLIGHT_S / s.period)),
+                              self._max_force, rt.params.runtime.state_timeout)
 
     def _make_endpoints(self) -> None:
         s, node = self.settings, self.node
@@ -174,7 +198,7 @@ class ControlLoop:
     def _timed(self, kind: str, callback: Callable) -> Callable:
         """Guard a callback (errors become events) and record how long it held the thread."""
         holds, events, clock = self.holds, self.events, time.perf_counter
-        errors, marks = self.errors, self._marks
+        errors, marks, recorder = self.errors, self._marks, self.recorder
 
         def run(*args: Any) -> None:
             t0 = marks[0] = marks[1] = clock()
@@ -188,6 +212,8 @@ class ControlLoop:
                 events.append(('error', f'{kind} failed: {exc!r}'))
             t1 = clock()
             holds.record(kind, t1 - t0)
+            if recorder is not None:  # the hold of the tick it recorded, if this one ticked
+                recorder.note_hold(t1 - t0)
             if t1 - t0 > holds.longest[0]:  # where it went: HoldStats.where
                 holds.longest = (t1 - t0, kind, hold_phases(kind, t0, marks, t1))
         return run
@@ -199,9 +225,13 @@ class ControlLoop:
         """Install what the node handed over since the last tick (the tick boundary)."""
         if self._pending:
             self.runtime.set_params(self._pending.popleft())
+            if self.recorder is not None:
+                self.recorder.configure(self._max_force, self.runtime.params.runtime.state_timeout)
         if self._restart:
             self._restart.popleft()
             self.runtime.restart()
+            if self.recorder is not None:  # the time inactive is no stall
+                self.recorder.forget_last()
         if self._reference:
             self.runtime.on_reference(self._reference.popleft())
         if self._tare:
@@ -261,7 +291,10 @@ class ControlLoop:
         t_start = time.perf_counter()
         now_ns = max(self._now_ns(), round(t_input * 1e9))
         self._t_tick = now_ns * 1e-9
-        out = self.runtime.tick(self._t_tick)
+        rt = self.runtime
+        out = rt.tick(self._t_tick)
+        if self.recorder is not None:
+            self.recorder.record(self._t_tick, rt.joint_sample, rt.wrench_stamp, out)
         self._marks[1] = time.perf_counter()
         if out.tau is not None:
             self.effort.publish(out.tau)

@@ -1,0 +1,129 @@
+"""
+The controller node's side of the flight recorder: dumps written off the control thread.
+
+The control thread's :class:`~hybrid_force_controller.core.runtime.flight_recorder.FlightRecorder`
+only appends ``(reason, t)`` to its ``requests`` when a tick triggers (safe mode, a force above
+``flight_recorder_max_force``, contact lost in the force loop, a stall). :meth:`FlightDumps.poll`
+runs on the node's thread (its housekeeping, every 100 ms): it takes the requests, copies the
+ring (:meth:`FlightRecorder.snapshot`) and hands the bag's writing (tools/flight_log.py) to a
+thread of its own at normal priority, so neither the control thread nor the node's thread
+serializes messages. That thread still takes the GIL (0.3-0.5 s of Python for 2000 ticks);
+with the switch interval of 0.2 ms a thread waking every 1 ms beside it was late by at most
+~4 ms once the start-up heap was frozen (``gc.freeze()``, as the node does at configure),
+against 15-20 ms without: the full collection its allocations trigger then skips that heap.
+
+At most one dump per ``min_interval_s`` (5 s): the requests of a burst (one fault often trips
+several triggers, and a flapping one trips them again and again) go into the dump they fall
+in or are dropped and counted (:attr:`FlightDumps.skipped`). Each
+finished dump is logged on the node's thread (at its next poll) as
+``flight recorder: REASON at t=T: PATH``, T the tick time of the first trigger (loop clock).
+"""
+from __future__ import annotations
+
+from collections import deque
+import math
+import os
+from pathlib import Path
+import threading
+import time
+from typing import Any, Callable
+
+from ...core.runtime.flight_recorder import FlightRecorder, FlightSnapshot
+from ...tools.bag_io import BagError
+from ...tools.flight_log import flight_log_path, write_flight_log
+
+__all__ = ['FlightDumps', 'MIN_INTERVAL_S']
+
+MIN_INTERVAL_S = 5.0  # at most one dump this often (no dump storm)
+JOIN_S = 10.0  # a node that ends waits this long for a dump being written
+
+
+def _normal_priority() -> None:
+    """Put the calling thread at SCHED_OTHER (it inherits the node thread's FIFO level)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+
+
+class FlightDumps:
+    """
+    Take the recorder's requests on the node's thread and write the dumps on another.
+
+    Parameters
+    ----------
+    directory : str or pathlib.Path
+        Where the bags go (created when needed).
+    model : RobotModel
+        The arm: its joints (the order of q), theta_hat's names and base frame.
+    log : callable
+        Logs one line (the node's ``get_logger().warning``); called on the caller's thread.
+    min_interval_s : float
+        At most one dump this often, s (``clock``'s seconds).
+    clock : callable
+        Monotonic seconds (``time.monotonic``; the node's wall clock, also with sim time).
+
+    """
+
+    def __init__(self, directory: str | Path, model: Any, log: Callable[[str], Any],
+                 min_interval_s: float = MIN_INTERVAL_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.directory, self._log = Path(directory), log
+        self._names = (tuple(model.joint_names), tuple(model.theta_names), model.base_link)
+        self.min_interval_s, self._clock = min_interval_s, clock
+        self._last = -math.inf
+        self.dumps = 0  # dumps started
+        self.skipped = 0  # requests dropped within min_interval_s of a dump
+        self._done: deque = deque()  # lines to log, from the writer threads
+        self._writers: list[threading.Thread] = []
+
+    def poll(self, recorder: FlightRecorder) -> None:
+        """
+        Start a dump for the pending requests (when allowed); log the dumps written since.
+
+        The requests taken together make one dump: their reasons joined, the first's time.
+        """
+        reasons, t_first = [], math.nan
+        while recorder.requests:
+            reason, t = recorder.requests.popleft()
+            if not reasons:
+                t_first = t
+            if reason not in reasons:
+                reasons.append(reason)
+        if reasons:
+            now = self._clock()
+            if now - self._last < self.min_interval_s:
+                self.skipped += len(reasons)
+            else:
+                self._last = now
+                self._start(recorder.snapshot(), '; '.join(reasons), t_first)
+        while self._done:
+            self._log(self._done.popleft())
+
+    def _start(self, snap: FlightSnapshot, reason: str, t: float) -> None:
+        path = flight_log_path(self.directory, reason, seq=self.dumps)
+        self.dumps += 1
+        self._writers = [w for w in self._writers if w.is_alive()]
+        writer = threading.Thread(target=self._write, args=(path, snap, reason, t),
+                                  name='flight_log', daemon=True)
+        self._writers.append(writer)
+        writer.start()
+
+    def _write(self, path: Path, snap: FlightSnapshot, reason: str, t: float) -> None:
+        """Write one bag (on its own thread) and queue the line that says where it is."""
+        _normal_priority()
+        joints, theta, frame = self._names
+        try:
+            write_flight_log(path, snap, joints, theta, frame, reason, t)
+            self._done.append(f'flight recorder: {reason} at t={t:.3f}: {path}')
+        except (BagError, OSError) as exc:
+            self._done.append(f'flight recorder: {reason} at t={t:.3f}: could not write '
+                              f'{path}: {exc}')
+
+    def join(self, timeout: float = JOIN_S) -> None:
+        """Wait for the dumps being written (the node ends) and log them."""
+        deadline = time.monotonic() + timeout
+        for writer in self._writers:
+            writer.join(max(0.0, deadline - time.monotonic()))
+        while self._done:
+            self._log(self._done.popleft())

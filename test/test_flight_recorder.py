@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
 import tracemalloc
 
@@ -265,12 +266,21 @@ def test_dumps_are_written_off_the_thread_at_most_one_per_interval(tmp_path):
     assert lines[0].startswith(prefix), lines
     path = lines[0][len(prefix):]
     assert path.startswith(str(tmp_path / 'flight' / 'flight_')) and path.endswith('_safe_mode_x')
+    assert f'_{os.getpid()}_' in path  # two processes' dumps of one second never collide
     assert len(load_run(path).t) == 100
     now[0] += 0.2
     rec.trigger('contact lost in the force loop', 104.0)
     dumps.poll(rec)
     dumps.join()
-    assert dumps.dumps == 2 and len(lines) == 2 and '_001_contact_lost_in' in lines[1]
+    assert dumps.dumps == 2 and len(lines) == 2 and lines[1].endswith('_contact_lost_in')
+    dumps.max_dumps = 3  # the cap: a third dump, said to be the last, then none
+    for t in (110.0, 120.0):
+        now[0] += 5.0
+        rec.trigger('stall (1 s)', t)
+        dumps.poll(rec)
+    dumps.join()
+    assert dumps.dumps == 3 and dumps.skipped == 2 and len(lines) == 4, lines
+    assert lines[2].startswith('flight recorder: 3 dumps written, the last in this run')
 
 
 def test_a_dump_that_cannot_be_written_says_why(tmp_path):

@@ -61,17 +61,18 @@ _T = TYPESTORE.types
 
 
 def flight_log_path(directory: str | Path, reason: str, wall_s: float | None = None,
-                    seq: int = 0) -> Path:
+                    tag: str = '') -> Path:
     """
-    Return the bag directory of a dump: ``DIR/flight_YYYYmmdd-HHMMSS_SEQ_REASON``.
+    Return the bag directory of a dump: ``DIR/flight_YYYYmmdd-HHMMSS_TAG_REASON``.
 
-    ``wall_s``: the wall time of the dump (None: now); ``REASON`` is the reason's first
+    ``wall_s``: the wall time of the dump (None: now); ``TAG`` tells apart the dumps of one
+    second (the node gives its process id and a count); ``REASON`` is the reason's first
     words, letters and digits only.
     """
     wall_s = time.time() if wall_s is None else wall_s
     slug = '_'.join(re.findall(r'[a-z0-9]+', reason.lower())[:3]) or 'trigger'
     stamp = time.strftime('%Y%m%d-%H%M%S', time.localtime(wall_s))
-    return Path(directory) / f'flight_{stamp}_{seq:03d}_{slug}'
+    return Path(directory) / '_'.join(x for x in ('flight', stamp, tag, slug) if x)
 
 
 def _ns(t: float) -> int:

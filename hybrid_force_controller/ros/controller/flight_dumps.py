@@ -14,13 +14,16 @@ against 15-20 ms without: the full collection its allocations trigger then skips
 
 At most one dump per ``min_interval_s`` (5 s): the requests of a burst (one fault often trips
 several triggers, and a flapping one trips them again and again) go into the dump they fall
-in or are dropped and counted (:attr:`FlightDumps.skipped`). Each
+in or are dropped and counted (:attr:`FlightDumps.skipped`), and a node writes at most
+``max_dumps`` (100, some 200-300 MB) in its life: a fault that keeps coming back does not fill
+the disk (one line says so when the last is written). Each
 finished dump is logged on the node's thread (at its next poll) as
 ``flight recorder: REASON at t=T: PATH``, T the tick time of the first trigger (loop clock).
 """
 from __future__ import annotations
 
 from collections import deque
+import itertools
 import math
 import os
 from pathlib import Path
@@ -35,6 +38,8 @@ from ...tools.flight_log import flight_log_path, write_flight_log
 __all__ = ['FlightDumps', 'MIN_INTERVAL_S']
 
 MIN_INTERVAL_S = 5.0  # at most one dump this often (no dump storm)
+MAX_DUMPS = 100  # and at most this many per node
+_COUNT = itertools.count()  # the dumps of this process (two nodes' names never collide)
 JOIN_S = 10.0  # a node that ends waits this long for a dump being written
 
 
@@ -60,20 +65,22 @@ class FlightDumps:
         Logs one line (the node's ``get_logger().warning``); called on the caller's thread.
     min_interval_s : float
         At most one dump this often, s (``clock``'s seconds).
+    max_dumps : int
+        At most this many dumps in the object's life.
     clock : callable
         Monotonic seconds (``time.monotonic``; the node's wall clock, also with sim time).
 
     """
 
     def __init__(self, directory: str | Path, model: Any, log: Callable[[str], Any],
-                 min_interval_s: float = MIN_INTERVAL_S,
+                 min_interval_s: float = MIN_INTERVAL_S, max_dumps: int = MAX_DUMPS,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.directory, self._log = Path(directory), log
         self._names = (tuple(model.joint_names), tuple(model.theta_names), model.base_link)
-        self.min_interval_s, self._clock = min_interval_s, clock
+        self.min_interval_s, self.max_dumps, self._clock = min_interval_s, max_dumps, clock
         self._last = -math.inf
         self.dumps = 0  # dumps started
-        self.skipped = 0  # requests dropped within min_interval_s of a dump
+        self.skipped = 0  # requests dropped: within min_interval_s of a dump, or past the cap
         self._done: deque = deque()  # lines to log, from the writer threads
         self._writers: list[threading.Thread] = []
 
@@ -92,7 +99,7 @@ class FlightDumps:
                 reasons.append(reason)
         if reasons:
             now = self._clock()
-            if now - self._last < self.min_interval_s:
+            if now - self._last < self.min_interval_s or self.dumps >= self.max_dumps:
                 self.skipped += len(reasons)
             else:
                 self._last = now
@@ -101,8 +108,13 @@ class FlightDumps:
             self._log(self._done.popleft())
 
     def _start(self, snap: FlightSnapshot, reason: str, t: float) -> None:
-        path = flight_log_path(self.directory, reason, seq=self.dumps)
+        tag = f'{os.getpid()}_{next(_COUNT):03d}'
+        path = flight_log_path(self.directory, reason, tag=tag)
         self.dumps += 1
+        if self.dumps == self.max_dumps:
+            self._done.append(f'flight recorder: {self.max_dumps} dumps written, the last '
+                              'in this run (the node writes no more until it is configured '
+                              'again)')
         self._writers = [w for w in self._writers if w.is_alive()]
         writer = threading.Thread(target=self._write, args=(path, snap, reason, t),
                                   name='flight_log', daemon=True)

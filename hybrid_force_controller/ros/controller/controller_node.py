@@ -402,7 +402,7 @@ def main(args: list[str] | None = None) -> int:
         node = ControllerNode()
         node.schedule_this_thread()
         return node
-    return run_node(make_node, 'hybrid_force_controller', args)
+    return run_node(make_node, 'hybrid_force_controller', args, cell=True)
 
 
 if __name__ == '__main__':

@@ -45,12 +45,12 @@ class CellDomains:
 
     @property
     def isolated(self) -> bool:
-        """True when the cell runs on a domain of its own, behind a gateway."""
+        """Tell whether the cell runs on a domain of its own, behind a gateway."""
         return self.cell is not None
 
     @property
     def node_domain(self) -> int:
-        """The domain the cell's nodes join."""
+        """Return the domain the cell's nodes join."""
         return self.public if self.cell is None else self.cell
 
 
@@ -106,7 +106,7 @@ def gateway_lock(domains: CellDomains) -> socket.socket | None:
 
 
 def gateway_running(domains: CellDomains) -> bool:
-    """True when a gateway holds the cell's lock (a bind that fails; microseconds)."""
+    """Tell whether a gateway holds the cell's lock (a bind that fails; microseconds)."""
     sock = gateway_lock(domains)
     if sock is None:
         return True

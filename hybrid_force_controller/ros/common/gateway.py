@@ -3,9 +3,9 @@ The cell's gateway: the cell domain's nodes, topics and services shown on the us
 
 ``python -m hybrid_force_controller.ros.common.gateway --public P --cell C`` (started by the
 first node of a cell, :func:`.cell.start_gateway`; one per cell, an abstract-socket lock
-keeps it single). It has one participant on each domain, both UDP only (the package's
-UDP-only profile, config/fastdds_udp.xml), so a reader joining the user's domain never meets a cell participant, and
-the gateway itself never opens a shared-memory port (no 333 ms health check). Every
+keeps it single). It has one participant on each domain, on the package's UDP-only profile
+(config/fastdds_udp.xml), so a reader joining the user's domain never meets a cell
+participant. Every
 ``SCAN_S`` it reads the cell's graph and keeps, on the user's domain:
 
 * **nodes**: one node of the same name and namespace for each node of the cell (``ros2 node
@@ -61,7 +61,7 @@ def import_type(name: str) -> Any:
 
 
 def mirror_qos(infos: Sequence[Any]) -> QoSProfile:
-    """QoS that matches every endpoint of ``infos``: reliable if one is, durable if one is."""
+    """Return a QoS that matches every endpoint of ``infos`` (reliable, durable if one is)."""
     reliable = any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
     durable = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
     return QoSProfile(
@@ -111,8 +111,8 @@ class Gateway:
                    signal_handler_options=SignalHandlerOptions.NO)
         rclpy.init(context=self.ctx_user, domain_id=domains.public,
                    signal_handler_options=SignalHandlerOptions.NO)
-        kw = dict(start_parameter_services=False, enable_rosout=False,
-                  parameter_overrides=NO_TYPE_SERVICE)
+        kw = {'start_parameter_services': False, 'enable_rosout': False,
+              'parameter_overrides': NO_TYPE_SERVICE}
         self.cell = Node(GATEWAY_NODE, context=self.ctx_cell, **kw)
         self.user = Node(GATEWAY_NODE, context=self.ctx_user, **kw)
         self.exec_cell = SingleThreadedExecutor(context=self.ctx_cell)
@@ -233,7 +233,7 @@ class Gateway:
 
     # ------------------------------------------------------------------ running
     def idle(self) -> bool:
-        """True once the cell had nodes and has had none for ``IDLE_EXIT_S``."""
+        """Tell whether the cell had nodes and has had none for ``IDLE_EXIT_S``."""
         return self.seen_any and time.monotonic() - self.last_seen > IDLE_EXIT_S
 
     def run(self, stop: threading.Event, startup_s: float = 30.0) -> None:

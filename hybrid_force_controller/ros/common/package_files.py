@@ -1,4 +1,4 @@
-"""The package's installed files: config/ from the source tree, the pip prefix or the ament index."""
+"""The package's files: config/ from the source tree, the pip prefix or the ament index."""
 from __future__ import annotations
 
 from pathlib import Path

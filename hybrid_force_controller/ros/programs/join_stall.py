@@ -1,5 +1,5 @@
 """
-``python -m hybrid_force_controller.ros.programs.join_stall``: do joining nodes stall the cell?
+``python -m hybrid_force_controller.ros.programs.join_stall``: joining nodes against the cell.
 
 Starts the sim and the controller as ``demo --arm ARM --physics PHYSICS`` does (``NAME:=VALUE``
 after ``--sim`` or ``--controller`` are added), lets them run ``--warm-up`` s, then alternates
@@ -29,7 +29,6 @@ import tempfile
 import time
 from typing import Sequence
 
-import numpy as np
 
 __all__ = ['main']
 
@@ -77,9 +76,10 @@ def _spin_for(executor, seconds: float) -> None:
 
 def _stretch_gaps(reports: list[tuple], start: float, end: float) -> tuple[float, int, float]:
     """
-    The sim's reports within [start, end]: the largest command gap (ms), how many reports had
-    one over 100 ms, the lowest commands/s.
+    Summarise the sim's reports within [start, end].
 
+    Returns the largest command gap (ms), how many reports had one over 100 ms, and the lowest
+    commands/s.
     Each report covers the second before it, so those in [start + 1, end] cover the stretch.
     """
     inside = [(gap, rate) for t, gap, rate in reports if start + 1.0 <= t <= end]
@@ -90,8 +90,9 @@ def _stretch_gaps(reports: list[tuple], start: float, end: float) -> tuple[float
         round(min(r for _, r in inside), 1)
 
 
-def _run_stretch(executor, joining: bool, joins: int, probe: str, env: dict) -> tuple[float, float]:
-    """One stretch of ``joins`` s; with ``joining`` a probe process starts every second."""
+def _run_stretch(executor, joining: bool, joins: int, probe: str,
+                 env: dict) -> tuple[float, float]:
+    """Run one stretch of ``joins`` s; with ``joining`` a probe process starts every second."""
     start, procs = time.monotonic(), []
     try:
         for _ in range(joins):
@@ -109,7 +110,7 @@ def _run_stretch(executor, joining: bool, joins: int, probe: str, env: dict) -> 
 
 def _monitor(domain: int):
     """
-    This process's node on the cell's domain (UDP profile) and the sim's reports it collects.
+    Make this process's node on the cell's domain (UDP profile), collecting the sim's reports.
 
     A report: (reception time, the largest gap between two efforts that reached the sim in
     the second before, ms; the efforts it took per second).

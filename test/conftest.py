@@ -6,6 +6,7 @@ domain of their own set ROS_DOMAIN_ID themselves (or pass domain_id to rclpy.ini
 """
 import os
 import signal
+import tempfile
 
 from hybrid_force_controller.ros.programs.launch import use_loopback_dds
 import pytest
@@ -19,6 +20,9 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
+# The controllers' flight recorder writes under $ROS_HOME (every shutdown whose sim stops first
+# looks like a lost input to it): the suite's dumps go to a directory of the run, not ~/.ros
+os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='hfc_suite_ros_home_')
 # The test process and the observers it starts (recorders, programs) on UDP loopback, with no
 # shared-memory port (config/fastdds_loopback.xml); the sims and controllers keep shared memory
 # (ros_helpers.node_env). Fast DDS's port health check stalled the cell 333 ms at random when a

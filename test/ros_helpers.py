@@ -49,7 +49,7 @@ _DOMAIN_OFFSETS = {
     'shutdown': 13, 'stiffness': 14, 'qos': 15, 'sim_node': 16, 'bench': 17,
     'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'sim_watchdog': 21,
     'wrong_inputs': 22, 'path_ros': 23, 'task_interface': 24, 'contact_normal': 25,
-    'surface_normal_ros': 26, 'flight_recorder': 27,
+    'surface_normal_ros': 26, 'flight_recorder': 27, 'gateway': 28,
     'mujoco_ros': 30, 'dds_profile': 31,
 }
 

@@ -18,8 +18,12 @@ bag record`` work as before, and a stall of the gateway never reaches the cell.
 
 * unset or ``auto``: ``ROS_DOMAIN_ID + 100`` (``- 100`` above 132), the default;
 * a number 0-232: that domain (every node of one cell must get the same);
-* ``off``: no cell domain and no gateway, the nodes on ``ROS_DOMAIN_ID`` as on a ros2_control
-  robot, where the controller must meet the robot's ``controller_manager`` (README).
+* ``robot``: for a ros2_control robot. The controller's 1 kHz link (``joint_states``, the
+  force/torque broadcaster's wrench, the effort controller's ``commands``) stays on
+  ``ROS_DOMAIN_ID``, where the robot's ``controller_manager`` is; the rest of the node
+  (parameters, lifecycle, telemetry, diagnostics, logs) is on the automatic cell domain behind
+  the gateway. A reader of those 1 kHz topics themselves meets the link (README);
+* ``off``: no cell domain and no gateway, every node on ``ROS_DOMAIN_ID`` (as before).
 """
 from __future__ import annotations
 
@@ -38,10 +42,21 @@ GATEWAY_PROFILE = 'fastdds_udp.xml'  # UDP only: no shared-memory port, no healt
 
 
 class CellDomains:
-    """The user's domain and the cell's (``cell is None``: no cell domain, no gateway)."""
+    """
+    The user's domain and the cell's (``cell is None``: no cell domain, no gateway).
 
-    def __init__(self, public: int, cell: int | None) -> None:
-        self.public, self.cell = public, cell
+    ``robot_link``: the controller's 1 kHz link (``joint_states``, the wrench, the efforts)
+    stays on the user's domain, the robot's graph, while the rest of the node is on the cell
+    domain behind the gateway (``HFC_CELL_DOMAIN_ID=robot``).
+    """
+
+    def __init__(self, public: int, cell: int | None, robot_link: bool = False) -> None:
+        self.public, self.cell, self.robot_link = public, cell, robot_link
+
+    @property
+    def link_domain(self) -> int | None:
+        """Return the domain of the controller's 1 kHz link when not the node's, else None."""
+        return self.public if self.robot_link else None
 
     @property
     def isolated(self) -> bool:
@@ -79,14 +94,15 @@ def cell_domains(environ: Mapping[str, str] | None = None) -> CellDomains:
     choice = env.get(CELL_VAR, '').strip().lower() or 'auto'
     if choice == 'off':
         return CellDomains(public, None)
-    if choice == 'auto':
+    robot_link = choice == 'robot'
+    if choice in ('auto', 'robot'):
         cell = public + CELL_OFFSET if public + CELL_OFFSET <= MAX_DOMAIN else public - CELL_OFFSET
     else:
         cell = _domain(choice, CELL_VAR)
     if cell == public:
         raise ValueError(f'{CELL_VAR} ({cell}) must differ from ROS_DOMAIN_ID ({public}); '
                          "'off' puts the cell on ROS_DOMAIN_ID without a gateway")
-    return CellDomains(public, cell)
+    return CellDomains(public, cell, robot_link)
 
 
 def gateway_lock(domains: CellDomains) -> socket.socket | None:

@@ -41,8 +41,11 @@ import time
 from typing import Any, Callable, Sequence
 
 from geometry_msgs.msg import WrenchStamped
+import rclpy
+from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
@@ -72,12 +75,14 @@ class LoopSettings:
     def __init__(self, topics: dict[str, str], qos_in: Any, period: float, tick_mode: str,
                  executor: str, use_sim_time: bool, thread_priority: int,
                  cpu_affinity: Sequence[int], flight_recorder: bool = False,
-                 flight_max_force: float = math.inf) -> None:
+                 flight_max_force: float = math.inf, link_domain: int | None = None) -> None:
         self.topics, self.qos_in, self.period = topics, qos_in, period
         self.tick_mode, self.executor, self.use_sim_time = tick_mode, executor, use_sim_time
         self.thread_priority, self.cpu_affinity = thread_priority, tuple(cpu_affinity)
         # the flight recorder: on or off, and the force (N) that triggers it (inf: none)
         self.flight_recorder, self.flight_max_force = flight_recorder, flight_max_force
+        # the domain of the 1 kHz link when it is not the node's (HFC_CELL_DOMAIN_ID=robot)
+        self.link_domain = link_domain
 
 
 class ControlLoop:
@@ -108,8 +113,12 @@ class ControlLoop:
         self.latest: tuple | None = None  # (TickOutput, stamp ns) of the last commanding tick
         self._mode = None
         self._t_state, self._t_tick = 0.0, -1.0
+        self._own_context = None if settings.link_domain is None else Context()
+        if self._own_context is not None:  # the link's participant, on the robot's domain
+            rclpy.init(context=self._own_context, domain_id=settings.link_domain,
+                       signal_handler_options=SignalHandlerOptions.NO)
         self.node = Node(f'_{owner.get_name()}_rt', namespace=owner.get_namespace(),
-                         context=owner.context, use_global_arguments=False,
+                         context=self._own_context or owner.context, use_global_arguments=False,
                          start_parameter_services=False, enable_rosout=False,
                          parameter_overrides=[Parameter('use_sim_time',
                                                         value=settings.use_sim_time)])
@@ -178,6 +187,8 @@ class ControlLoop:
             self._stop.set_result(True)
         self._thread.join(timeout)
         self.node.destroy_node()
+        if self._own_context is not None:
+            self._own_context.try_shutdown()
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:

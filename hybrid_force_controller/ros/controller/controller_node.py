@@ -43,6 +43,7 @@ from .flight_dumps import FlightDumps
 from .path_topics import PathTopics
 from .task_interface import TaskInterface
 from .telemetry import ControllerOutputs, TOPIC_COMMANDS
+from ..common.cell import cell_domains
 from ..common.model_source import expand_description, missing_description_hint
 from ..common.node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
 from ..common.node_params import TICK_MODES
@@ -190,7 +191,8 @@ class ControllerNode(LifecycleNode):
                             1.0 / self.runtime.params.runtime.rate_hz, self._tick_mode(),
                             nv['executor'], bool(self.get_parameter('use_sim_time').value),
                             self._thread_priority(), nv['cpu_affinity'],
-                            nv['flight_recorder_dir'] != '', nv['flight_recorder_max_force'])
+                            nv['flight_recorder_dir'] != '', nv['flight_recorder_max_force'],
+                            cell_domains().link_domain)
 
     def _thread_priority(self) -> int:
         """Return ``thread_priority``, or 0 with sim time (a lockstep loop runs flat out)."""

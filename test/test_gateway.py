@@ -1,0 +1,156 @@
+"""
+The cell domain and its gateway (ros/common/cell.py, ros/common/gateway.py; issue 30).
+
+* ``cell_domains`` reads ``ROS_DOMAIN_ID`` and ``HFC_CELL_DOMAIN_ID`` and refuses what cannot
+  work, saying why;
+* the sim and the controller started as a user starts them (no variable set) run on the cell
+  domain, and on the user's domain the gateway shows their nodes, takes ``ros2 param set``
+  (accepted and refused sets), mirrors the efforts and the telemetry, and feeds ``~/``
+  topics in; the cell's own writers never appear on the user's domain;
+* a user's ``joint_states`` on the user's domain never reaches the loop;
+* default-profile joiners that subscribe to every topic (as ``ros2 bag record -a``), one a
+  second, cause no command timeout at the plant (the sim's counter, over DDS).
+"""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+from hybrid_force_controller.ros.common.cell import CELL_VAR, cell_domains
+from hybrid_force_controller.ros.programs.join_stall import PROBES
+from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
+import pytest
+from ros_helpers import domain_id, node_env, RealTimeRig, ROOT, Spun, wait_for, wait_future
+
+GATEWAY = '_hfc_gateway'
+
+
+@pytest.mark.parametrize('env, public, cell', [
+    ({}, 0, 100), ({'ROS_DOMAIN_ID': '42'}, 42, 142), ({'ROS_DOMAIN_ID': '150'}, 150, 50),
+    ({'ROS_DOMAIN_ID': '7', CELL_VAR: '200'}, 7, 200), ({CELL_VAR: ' AUTO '}, 0, 100),
+    ({'ROS_DOMAIN_ID': '5', CELL_VAR: 'off'}, 5, None)])
+def test_cell_domains(env, public, cell):
+    domains = cell_domains(env)
+    assert (domains.public, domains.cell) == (public, cell)
+    assert domains.node_domain == (public if cell is None else cell)
+    assert domains.isolated is (cell is not None)
+
+
+@pytest.mark.parametrize('env, says', [
+    ({CELL_VAR: '300'}, '0-232'), ({CELL_VAR: 'x'}, 'must be a number'),
+    ({'ROS_DOMAIN_ID': '9', CELL_VAR: '9'}, 'must differ'),
+    ({'ROS_DOMAIN_ID': 'nine'}, 'ROS_DOMAIN_ID')])
+def test_cell_domains_refused(env, says):
+    with pytest.raises(ValueError, match=says):
+        cell_domains(env)
+
+
+@pytest.fixture(scope='module')
+def rig(tmp_path_factory):
+    """The paper's cell in real time, watched from the user's domain through the gateway."""
+    rig = RealTimeRig(tmp_path_factory.mktemp('gateway'), domain_id('gateway'))
+    try:
+        yield rig.start()
+    finally:
+        rig.close()
+
+
+def _set(rig, **values):
+    from rclpy.parameter import Parameter
+    params = [Parameter(k, value=v) for k, v in values.items()]
+    return wait_future(rig.params.set_parameters(params)).results
+
+
+def test_the_gateway_shows_the_cell_on_the_users_domain(rig):
+    node = rig.log.node
+    wait_for(lambda: {('hybrid_force_controller', '/'), ('sim', '/')}
+             <= set(node.get_node_names_and_namespaces()), 'the cell nodes on the user domain')
+    writers = node.get_publishers_info_by_topic('/effort_controller/commands')
+    assert writers and {w.node_name for w in writers} == {GATEWAY}, writers
+    assert not any(i.node_name == GATEWAY
+                   for i in node.get_subscriptions_info_by_topic('/joint_states'))
+    with Spun(cell_domains(node_env(rig.sim.domain)).cell) as cell:
+        probe = cell.node('cell_probe')
+        wait_for(lambda: ('_hybrid_force_controller_rt', '/')
+                 in probe.get_node_names_and_namespaces(), 'the loop node on the cell domain')
+        cell_writers = probe.get_publishers_info_by_topic('/effort_controller/commands')
+        assert {w.node_name for w in cell_writers} == {'_hybrid_force_controller_rt'}
+
+
+def test_parameters_through_the_gateway(rig):
+    ok = _set(rig, f_d=1.5)
+    assert ok[0].successful, ok[0].reason
+    assert wait_future(rig.params.get_parameters(['f_d'])).values[0].double_value == 1.5
+    refused = _set(rig, lambda1=10.0)
+    assert not refused[0].successful and 'eq. (29)' in refused[0].reason, refused[0].reason
+    assert wait_future(rig.params.get_parameters(['lambda1'])).values[0].double_value == 40.0
+    ok = _set(rig, f_d=1.0)
+    assert ok[0].successful, ok[0].reason
+
+
+def test_the_efforts_and_the_telemetry_are_mirrored(rig):
+    from geometry_msgs.msg import PointStamped
+    from std_msgs.msg import Float64MultiArray
+    node = rig.log.node
+    efforts, xs = [], []
+    subs = [node.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                     efforts.append, 100),
+            node.create_subscription(PointStamped, '/hybrid_force_controller/x', xs.append, 100)]
+    try:
+        wait_for(lambda: len(efforts) >= 200 and len(xs) >= 20, 'mirrored efforts and ~/x',
+                 alive=rig.procs)
+    finally:
+        for sub in subs:
+            node.destroy_subscription(sub)
+    assert all(len(m.data) == 2 and all(math.isfinite(v) for v in m.data) for m in efforts[:200])
+
+
+def test_a_users_joint_states_never_reach_the_loop(rig):
+    from sensor_msgs.msg import JointState
+    node = rig.log.node
+    key = 'callback_errors_joint_states'
+    before = rig.log.fresh_diag('hybrid_force_controller', alive=rig.procs)
+    pub = node.create_publisher(JointState, '/joint_states', 10)
+    bad = JointState(name=['joint1', 'joint2'], position=[math.nan] * 2, velocity=[0.0] * 2)
+    sent = []
+
+    def send() -> None:  # NaN joint states at 100 Hz, stamped now
+        bad.header.stamp = node.get_clock().now().to_msg()
+        pub.publish(bad)
+        sent.append(1)
+    timer = node.create_timer(0.01, send)
+    try:
+        wait_for(lambda: len(sent) >= 100, '1 s of NaN joint states on the user domain',
+                 alive=rig.procs)
+        readers = pub.get_subscription_count()  # the gateway feeds no cell-published topic
+    finally:
+        node.destroy_timer(timer)
+        node.destroy_publisher(pub)
+    after = rig.log.fresh_diag('hybrid_force_controller', alive=rig.procs)
+    assert readers == 0
+    assert after['mode'] == 'running', after
+    assert after.get(key, 0) == before.get(key, 0), after
+
+
+def test_default_profile_joiners_cause_no_command_timeout(rig):
+    env = {k: v for k, v in node_env(rig.sim.domain).items() if k != PROFILE_VAR}
+    before = rig.log.fresh_diag('sim', alive=rig.procs)
+    procs = []
+    try:
+        for _ in range(5):  # one joiner a second: the sim reports once a second
+            procs.append(subprocess.Popen([sys.executable, '-c', PROBES['all']], env=env,
+                                          cwd=ROOT, stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.DEVNULL))
+            rig.log.fresh_diag('sim', alive=rig.procs)
+        for p in procs:
+            p.wait(60)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    after = rig.log.fresh_diag('sim', alive=rig.procs)
+    assert [p.returncode for p in procs] == [0] * 5
+    assert after['command_timeouts'] == before['command_timeouts'], (before, after)
+    assert after['commands'] > before['commands']

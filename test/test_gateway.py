@@ -17,7 +17,7 @@ import math
 import subprocess
 import sys
 
-from hybrid_force_controller.ros.common.cell import CELL_VAR, cell_domains
+from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
 from hybrid_force_controller.ros.programs.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
 import pytest
@@ -48,7 +48,7 @@ def test_cell_domains_refused(env, says):
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    """The paper's cell in real time, watched from the user's domain through the gateway."""
+    """Run the paper's cell in real time, watched from the user's domain through the gateway."""
     rig = RealTimeRig(tmp_path_factory.mktemp('gateway'), domain_id('gateway'))
     try:
         yield rig.start()

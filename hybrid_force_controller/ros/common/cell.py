@@ -32,7 +32,8 @@ import socket
 import sys
 from typing import Mapping
 
-__all__ = ['CELL_VAR', 'CellDomains', 'cell_domains', 'gateway_lock', 'start_gateway']
+__all__ = ['CELL_VAR', 'CellDomains', 'announce', 'cell_domains', 'gateway_lock',
+           'start_gateway']
 
 CELL_VAR = 'HFC_CELL_DOMAIN_ID'
 CELL_OFFSET = 100
@@ -105,6 +106,19 @@ def cell_domains(environ: Mapping[str, str] | None = None) -> CellDomains:
     return CellDomains(public, cell, robot_link)
 
 
+def _lock_name(domains: CellDomains) -> str:
+    return f'\0hfc_gateway_{domains.cell}_{domains.public}'
+
+
+def announce(domains: CellDomains, pid: int) -> None:
+    """Tell the cell's gateway that ``pid`` is a node of the cell (it runs while one is)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.sendto(str(pid).encode(), _lock_name(domains))
+        except OSError:  # no gateway yet (the next check starts one), or its queue is full
+            pass
+
+
 def gateway_lock(domains: CellDomains) -> socket.socket | None:
     """
     Take the cell's gateway lock: an abstract Unix socket named after both domains.
@@ -114,7 +128,7 @@ def gateway_lock(domains: CellDomains) -> socket.socket | None:
     """
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     try:
-        sock.bind(f'\0hfc_gateway_{domains.cell}_{domains.public}')
+        sock.bind(_lock_name(domains))
     except OSError:
         sock.close()
         return None
@@ -137,7 +151,8 @@ def start_gateway(domains: CellDomains) -> int | None:
     The gateway runs on the package's UDP-only profile whatever the caller set (config/
     fastdds_udp.xml: no shared-memory transport, so no 333 ms health check), in a session of
     its own (a Ctrl-C to the node's terminal does not end the gateway the other nodes of the
-    cell still use); it ends by itself 2 s after the last node of the cell. It is started with
+    cell still use); it ends by itself 2 s after the last process of the cell
+    (:func:`announce`). It is started with
     ``posix_spawn`` (a vfork: no copy of the node's address space under the GIL) at the
     ordinary policy: started from a SCHED_FIFO thread it inherited FIFO, and its 250 ms
     scans, at the priority of the sim's own thread, held that thread off the CPU 106-136 ms
@@ -148,7 +163,10 @@ def start_gateway(domains: CellDomains) -> int | None:
     if not domains.isolated or gateway_running(domains):
         return None
     from .package_files import find_config, PROFILE_VAR
-    env = dict(os.environ, **{PROFILE_VAR: str(find_config(GATEWAY_PROFILE))})
+    # SYSTEM_DEFAULT: with LOCALHOST rmw_fastrtps would replace the profile's transports by
+    # its own localhost set, shared memory included (the profile keeps the gateway on 127.0.0.1)
+    env = dict(os.environ, **{PROFILE_VAR: str(find_config(GATEWAY_PROFILE)),
+                              'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'})
     cmd = [sys.executable, '-m', GATEWAY_MODULE, '--public', str(domains.public),
            '--cell', str(domains.cell)]
     return os.posix_spawn(sys.executable, cmd, env, setsid=True,

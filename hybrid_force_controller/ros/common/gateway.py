@@ -22,7 +22,7 @@ participant. Every
   a user's ``joint_states`` or ``effort_controller/commands`` cannot reach the loop.
 
 Messages pass as serialized bytes (no conversion). The gateway ends on SIGINT/SIGTERM, or
-``IDLE_EXIT_S`` after the last node of the cell has gone.
+``IDLE_EXIT_S`` after the last process of the cell has ended (:class:`Members`).
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -47,8 +47,9 @@ from .cell import CellDomains, gateway_lock
 
 __all__ = ['Gateway', 'main']
 
-SCAN_S = 0.25
+SCAN_S = 0.5
 IDLE_EXIT_S = 2.0
+STARTUP_S = 30.0  # a gateway that no node announced itself to ends after this long
 SERVICE_TIMEOUT_S = 10.0
 GATEWAY_NODE = '_hfc_gateway'
 NO_TYPE_SERVICE = [Parameter('start_type_description_service', value=False)]
@@ -101,6 +102,47 @@ class Graph:
                                      if not _gateway_node(i.node_name)]
 
 
+class Members:
+    """
+    The processes of the cell, as they announce themselves on the gateway's lock socket.
+
+    Each cell node sends its pid every 2 s (:func:`.cell.announce`); the gateway runs while one
+    of them lives, and ends ``IDLE_EXIT_S`` after the last one is gone (or ``STARTUP_S`` after
+    its start if none ever announced itself). The processes, not the DDS graph: a node killed
+    without a goodbye stays in the graph until its lease ends.
+    """
+
+    def __init__(self, sock: Any) -> None:
+        self.sock, self.pids, self.announced = sock, set(), False
+        self.sock.setblocking(False)
+        self.t_last = time.monotonic()
+
+    def alive(self) -> bool:
+        """Read the announcements; tell whether a member lives (or may still come)."""
+        now = time.monotonic()
+        while True:
+            try:
+                self.pids.add(int(self.sock.recv(64)))
+                self.announced = True
+            except (BlockingIOError, ValueError):
+                break
+        self.pids = {pid for pid in self.pids if _process_alive(pid)}
+        if self.pids:
+            self.t_last = now
+            return True
+        return now - self.t_last < (IDLE_EXIT_S if self.announced else STARTUP_S)
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 class Gateway:
     """The two participants and the mirrors between them (module docstring)."""
 
@@ -115,16 +157,14 @@ class Gateway:
               'parameter_overrides': NO_TYPE_SERVICE}
         self.cell = Node(GATEWAY_NODE, context=self.ctx_cell, **kw)
         self.user = Node(GATEWAY_NODE, context=self.ctx_user, **kw)
-        self.exec_cell = SingleThreadedExecutor(context=self.ctx_cell)
-        self.exec_user = SingleThreadedExecutor(context=self.ctx_user)
+        self.exec_cell = EventsExecutor(context=self.ctx_cell)
+        self.exec_user = EventsExecutor(context=self.ctx_user)
         self.exec_cell.add_node(self.cell)
         self.exec_user.add_node(self.user)
         self.nodes: dict[tuple[str, str], Node] = {}  # user-side twins of the cell's nodes
         self.services: dict[str, tuple[Any, Any]] = {}  # name: (server, client)
         self.out: dict[str, list] = {}  # cell -> user: [publisher, subscription or None]
         self.into: dict[str, tuple[Any, Any]] = {}  # user -> cell: (subscription, publisher)
-        self.last_seen = time.monotonic()
-        self.seen_any = False
         self.lock = threading.Lock()
         self.user.create_timer(SCAN_S, self._scan_guarded)
 
@@ -139,8 +179,6 @@ class Gateway:
     def scan(self) -> None:
         """Bring the mirrors in line with the cell's graph."""
         graph = Graph(self.cell)
-        if graph.nodes:
-            self.last_seen, self.seen_any = time.monotonic(), True
         self._sync_nodes(graph)
         published = {t for t, infos in graph.pub_infos.items() if infos}
         subscribed_only = {t for t, infos in graph.sub_infos.items()
@@ -178,6 +216,8 @@ class Gateway:
         client = self.cell.create_client(srv_type, name)
 
         def forward(request: Any, response: Any) -> Any:
+            if not client.service_is_ready():  # the gateway's client not matched yet
+                client.wait_for_service(SERVICE_TIMEOUT_S)
             future = client.call_async(request)
             done = threading.Event()
             future.add_done_callback(lambda _: done.set())
@@ -232,19 +272,12 @@ class Gateway:
             return None
 
     # ------------------------------------------------------------------ running
-    def idle(self) -> bool:
-        """Tell whether the cell had nodes and has had none for ``IDLE_EXIT_S``."""
-        return self.seen_any and time.monotonic() - self.last_seen > IDLE_EXIT_S
-
-    def run(self, stop: threading.Event, startup_s: float = 30.0) -> None:
-        """Spin both sides until ``stop``, the cell idles, or no node came within ``startup_s``."""
+    def run(self, stop: threading.Event, members: 'Members') -> None:
+        """Spin both sides until ``stop`` or until no process of the cell is left."""
         thread = threading.Thread(target=self._spin_cell, args=(stop,), name='cell',
                                   daemon=True)
         thread.start()
-        t0 = time.monotonic()
-        while not stop.is_set() and not self.idle():
-            if not self.seen_any and time.monotonic() - t0 > startup_s:
-                break
+        while not stop.is_set() and members.alive():
             self.exec_user.spin_once(timeout_sec=0.1)
         stop.set()
         thread.join(2.0)
@@ -279,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     gateway = Gateway(domains)
     try:
-        gateway.run(stop)
+        gateway.run(stop, Members(lock))
     finally:
         gateway.close()
         lock.close()

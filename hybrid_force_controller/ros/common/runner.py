@@ -23,7 +23,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
-from .cell import cell_domains, CellDomains, start_gateway
+from .cell import announce, cell_domains, CellDomains, start_gateway
 
 __all__ = ['EXECUTORS', 'make_executor', 'print_help', 'run_node', 'spin_until_signal',
            'wants_help']
@@ -94,6 +94,7 @@ def _keep_gateway(node: Node, domains: CellDomains) -> None:
         pid = start_gateway(domains)
         if pid is not None:
             started.append(pid)
+        announce(domains, os.getpid())
     check()
     node.create_timer(GATEWAY_CHECK_S, check)
 

@@ -154,7 +154,13 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float,
     from .recorder_node import BagRecorder, relative
     from ..common.runner import make_executor
     from rclpy.signals import SignalHandlerOptions
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt
+    from ..common.cell import cell_domains
+    # the recorder and the operator join the cell's own domain (the loopback profile, at the
+    # start, before contact), as its integrator would: the bag holds every 1 kHz message the
+    # cell sent, which a mirror through the gateway cannot promise under load (README); the
+    # user's path script talks to the cell through the gateway
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO,  # Ctrl-C: KeyboardInterrupt
+               domain_id=cell_domains().node_domain)
     rec = BagRecorder(bag, parameter_overrides=[Parameter('use_sim_time', value=lockstep)])
     executor = make_executor('events')
     executor.add_node(rec)

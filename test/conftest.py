@@ -20,6 +20,11 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 os.environ.setdefault('ROS_DOMAIN_ID', '42')
+# The suite's cells run on ROS_DOMAIN_ID itself (HFC_CELL_DOMAIN_ID=off), as before the gateway:
+# their tests inject faults into the 1 kHz topics and count them at the sim, which a plant-side
+# tool does on the cell's own domain. test_gateway and test_demo run the default (the cell
+# domain behind the gateway) and say so (ros_helpers.ISOLATED).
+os.environ['HFC_CELL_DOMAIN_ID'] = 'off'
 # The controllers' flight recorder writes under $ROS_HOME (every shutdown whose sim stops first
 # looks like a lost input to it): the suite's dumps go to a directory of the run, not ~/.ros
 os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='hfc_suite_ros_home_')

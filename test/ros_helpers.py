@@ -41,6 +41,7 @@ SIM_MODULE = 'sim_node.sim_node'
 CELL_MODULES = {CONTROLLER_MODULE, SIM_MODULE}  # started by node_env(cell=True)
 
 BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID', '42'))
+ISOLATED = {'HFC_CELL_DOMAIN_ID': 'auto'}  # node_env(**ISOLATED): the product's default
 # one domain per test module (offsets from BASE_DOMAIN); collisions are visible here
 _DOMAIN_OFFSETS = {
     'default': 0, 'nodes_params': 1, 'nodes_closed_loop': 2, 'fault_injection': 3,
@@ -384,15 +385,20 @@ class RealTimeRig:
     Sim (masses 50 % off, ``command_timeout`` 0.1 s) and controller in real time.
 
     With a :class:`ForceLog` (and theta_hat) and a parameter client of the controller;
-    ``ctrl_prefix`` runs the controller under a wrapper (``setpriv`` ...). Stopped by pid.
+    ``ctrl_prefix`` runs the controller under a wrapper (``setpriv`` ...); ``isolated``: on the
+    cell domain behind the gateway (the product's default; the suite's is ``off``). Stopped by
+    pid.
     """
 
     def __init__(self, tmp_path: Path, domain: int, ctrl_prefix: Sequence[str] = (),
-                 sim_args: Sequence[str] = MASSES_OFF, ctrl_args: Sequence[str] = ()) -> None:
+                 sim_args: Sequence[str] = MASSES_OFF, ctrl_args: Sequence[str] = (),
+                 isolated: bool = False) -> None:
         from rclpy.parameter_client import AsyncParameterClient
-        self.sim = NodeProcess(SIM_MODULE, tmp_path / 'sim.log', domain, list(sim_args))
+        env = node_env(domain, cell=True, **ISOLATED) if isolated else None
+        self.sim = NodeProcess(SIM_MODULE, tmp_path / 'sim.log', domain, list(sim_args),
+                               env=env)
         self.ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain,
-                                list(ctrl_args))
+                                list(ctrl_args), env=env)
         if ctrl_prefix:
             self.ctrl.command_override = [*ctrl_prefix, *self.ctrl.command[:3]]
             self.ctrl.args = ['--params-file', str(self.ctrl.params_file)]

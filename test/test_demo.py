@@ -14,7 +14,7 @@ import sys
 from hybrid_force_controller.tools.bag_io import load_run, RECORD_TOPICS
 import numpy as np
 import pytest
-from ros_helpers import domain_id
+from ros_helpers import domain_id, ISOLATED
 from rosbags.highlevel import AnyReader
 
 
@@ -31,7 +31,8 @@ def demo_run(tmp_path_factory, request) -> Path:
     mode = ['--lockstep'] if request.param == 'lockstep' else []
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                ROS_DOMAIN_ID=DEMO_DOMAIN_ID,
-               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
+               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]),
+               **ISOLATED)  # as a user runs it: the cell domain behind the gateway
     proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.ros.programs.demo',
                            '--duration', str(DURATION_S), '--out', str(out), *mode],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=600)
@@ -104,7 +105,8 @@ def test_the_wipe_task_tares_and_follows_the_users_path(tmp_path):
     back). Loose bounds (3x the issue's targets for the Panda): the machine may be loaded.
     """
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=DEMO_DOMAIN_ID,
-               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]))
+               PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]),
+               **ISOLATED)  # as a user runs it: the cell domain behind the gateway
     proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.ros.programs.demo',
                            '--task', 'wipe', '--side', '0.05', '--out', str(tmp_path)],
                           env=env, cwd=REPO, capture_output=True, text=True, timeout=600)

@@ -21,7 +21,7 @@ from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
 from hybrid_force_controller.ros.programs.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
 import pytest
-from ros_helpers import domain_id, node_env, RealTimeRig, ROOT, Spun, wait_for, wait_future
+from ros_helpers import domain_id, RealTimeRig, ROOT, Spun, wait_for, wait_future
 
 GATEWAY = '_hfc_gateway'
 
@@ -49,7 +49,7 @@ def test_cell_domains_refused(env, says):
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
     """Run the paper's cell in real time, watched from the user's domain through the gateway."""
-    rig = RealTimeRig(tmp_path_factory.mktemp('gateway'), domain_id('gateway'))
+    rig = RealTimeRig(tmp_path_factory.mktemp('gateway'), domain_id('gateway'), isolated=True)
     try:
         yield rig.start()
     finally:
@@ -70,7 +70,7 @@ def test_the_gateway_shows_the_cell_on_the_users_domain(rig):
     assert writers and {w.node_name for w in writers} == {GATEWAY}, writers
     assert not any(i.node_name == GATEWAY
                    for i in node.get_subscriptions_info_by_topic('/joint_states'))
-    with Spun(cell_domains(node_env(rig.sim.domain)).cell) as cell:
+    with Spun(cell_domains(rig.sim.env).cell) as cell:
         probe = cell.node('cell_probe')
         wait_for(lambda: ('_hybrid_force_controller_rt', '/')
                  in probe.get_node_names_and_namespaces(), 'the loop node on the cell domain')
@@ -134,7 +134,7 @@ def test_a_users_joint_states_never_reach_the_loop(rig):
 
 
 def test_default_profile_joiners_cause_no_command_timeout(rig):
-    env = {k: v for k, v in node_env(rig.sim.domain).items() if k != PROFILE_VAR}
+    env = {k: v for k, v in rig.sim.env.items() if k != PROFILE_VAR}
     before = rig.log.fresh_diag('sim', alive=rig.procs)
     procs = []
     try:

@@ -18,8 +18,10 @@ participant. Every
   the cell nothing until ``ros2 bag record`` asks for them);
 * **topics the cell only subscribes**: a subscription on the user's domain whose messages
   are published into the cell (``~/path``, ``~/reference``, ``~/target_wrench``; a
-  ``robot_description`` from outside). A topic the cell publishes is never fed from outside:
-  a user's ``joint_states`` or ``effort_controller/commands`` cannot reach the loop.
+  ``robot_description`` from outside). A topic a cell node has ever published is never fed
+  from outside: a user's ``joint_states`` or ``effort_controller/commands`` cannot reach the
+  loop, even while the graph momentarily misses the sim's writer (a best-effort writer of the
+  gateway's appeared on the cell's ``joint_states`` that way).
 
 Messages pass as serialized bytes (no conversion). The gateway ends on SIGINT/SIGTERM, or
 ``IDLE_EXIT_S`` after the last process of the cell has ended (:class:`Members`).
@@ -49,6 +51,7 @@ __all__ = ['Gateway', 'main']
 
 SCAN_S = 0.5
 IDLE_EXIT_S = 2.0
+MISSING_SCANS = 3  # a topic's mirror stays this many scans after its writer left the graph
 STARTUP_S = 30.0  # a gateway that no node announced itself to ends after this long
 SERVICE_TIMEOUT_S = 10.0
 GATEWAY_NODE = '_hfc_gateway'
@@ -163,7 +166,9 @@ class Gateway:
         self.exec_user.add_node(self.user)
         self.nodes: dict[tuple[str, str], Node] = {}  # user-side twins of the cell's nodes
         self.services: dict[str, tuple[Any, Any]] = {}  # name: (server, client)
-        self.out: dict[str, list] = {}  # cell -> user: [publisher, subscription or None]
+        self.out: dict[str, list] = {}  # cell -> user: [publisher, subscription or None, qos]
+        self.plant_topics: set[str] = set()  # every topic a cell node has published
+        self.missing: dict[str, int] = {}  # scans a mirrored topic has had no writer
         self.into: dict[str, tuple[Any, Any]] = {}  # user -> cell: (subscription, publisher)
         self.lock = threading.Lock()
         self.user.create_timer(SCAN_S, self._scan_guarded)
@@ -181,8 +186,13 @@ class Gateway:
         graph = Graph(self.cell)
         self._sync_nodes(graph)
         published = {t for t, infos in graph.pub_infos.items() if infos}
+        self.plant_topics |= published  # once published in the cell, never fed from outside
+        for topic in list(self.out):  # a mirror outlives MISSING_SCANS scans without its writer
+            self.missing[topic] = 0 if topic in published else self.missing.get(topic, 0) + 1
+            if self.missing[topic] < MISSING_SCANS:
+                published.add(topic)
         subscribed_only = {t for t, infos in graph.sub_infos.items()
-                           if infos and t not in published}
+                           if infos and t not in self.plant_topics}
         self._sync_into(graph, subscribed_only)  # first: a topic that turned published
         self._sync_out(graph, published)  # must not see the gateway's own reader as a user
 
@@ -228,7 +238,8 @@ class Gateway:
 
     def _sync_out(self, graph: Graph, published: set[str]) -> None:
         for topic in [t for t in self.out if t not in published]:
-            pub, sub = self.out.pop(topic)
+            pub, sub, _ = self.out.pop(topic)
+            self.missing.pop(topic, None)
             if sub is not None:
                 self.cell.destroy_subscription(sub)
             self.user.destroy_publisher(pub)
@@ -238,14 +249,13 @@ class Gateway:
                 if msg_type is None:
                     continue
                 qos = mirror_qos(graph.pub_infos[topic])
-                self.out[topic] = [self.user.create_publisher(msg_type, topic, qos), None]
+                self.out[topic] = [self.user.create_publisher(msg_type, topic, qos), None, qos]
             entry = self.out[topic]
             watched = entry[0].get_subscription_count() > 0
             if watched and entry[1] is None:
                 pub = entry[0]
-                entry[1] = self.cell.create_subscription(
-                    pub.msg_type, topic, pub.publish, mirror_qos(graph.pub_infos[topic]),
-                    raw=True)
+                entry[1] = self.cell.create_subscription(pub.msg_type, topic, pub.publish,
+                                                         entry[2], raw=True)
             elif not watched and entry[1] is not None:
                 self.cell.destroy_subscription(entry[1])
                 entry[1] = None

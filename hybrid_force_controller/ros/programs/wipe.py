@@ -29,6 +29,8 @@ SETTLE_S = 1.0  # pressing this long before the path is sent, s
 PRESS_TIMEOUT_S = 30.0  # the demo fails when the tool is not pressing this long after activation
 TOUCH_TOL = 0.5  # pressing: the true force within this fraction of f_d (an untared bias of 2-3 N)
 AFTER_S = 1.0  # recorded after the script is done, s
+TARE_RETRY_S = 10.0  # a tare refused for want of a wrench is asked again until then
+
 
 
 class WipeOperator:
@@ -110,6 +112,9 @@ class WipeOperator:
         if not self.future.done():
             return False
         answer = self.future.result()
+        if not answer.success and 'no wrench' in answer.message and elapsed < TARE_RETRY_S:
+            self.future = None  # the wrench has not reached the just-configured loop yet: again
+            return False
         if not answer.success:
             raise RuntimeError(f'tare: {answer.message}')
         print(f'\n  tare: {answer.message}')

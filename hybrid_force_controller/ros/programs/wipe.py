@@ -32,7 +32,6 @@ AFTER_S = 1.0  # recorded after the script is done, s
 TARE_RETRY_S = 10.0  # a tare refused for want of a wrench is asked again until then
 
 
-
 class WipeOperator:
     """The operator's steps, polled by the demo's recording loop (module docstring)."""
 

@@ -170,14 +170,12 @@ class Gateway:
         self.plant_topics: set[str] = set()  # every topic a cell node has published
         self.missing: dict[str, int] = {}  # scans a mirrored topic has had no writer
         self.into: dict[str, tuple[Any, Any]] = {}  # user -> cell: (subscription, publisher)
-        self.lock = threading.Lock()
         self.user.create_timer(SCAN_S, self._scan_guarded)
 
     # ------------------------------------------------------------------ the scan
     def _scan_guarded(self) -> None:
         try:
-            with self.lock:
-                self.scan()
+            self.scan()
         except Exception as exc:  # noqa: BLE001 - a graph that changed mid-scan: next scan
             self.user.get_logger().warning(f'scan: {exc!r}', throttle_duration_sec=5.0)
 
@@ -288,13 +286,27 @@ class Gateway:
                                   daemon=True)
         thread.start()
         while not stop.is_set() and members.alive():
-            self.exec_user.spin_once(timeout_sec=0.1)
+            self._spin_once(self.exec_user, self.user)
         stop.set()
         thread.join(2.0)
 
     def _spin_cell(self, stop: threading.Event) -> None:
         while not stop.is_set():
-            self.exec_cell.spin_once(timeout_sec=0.1)
+            self._spin_once(self.exec_cell, self.cell)
+
+    @staticmethod
+    def _spin_once(executor: Any, node: Node) -> None:
+        """
+        Spin once; a callback that met an endpoint the scan had just destroyed is skipped.
+
+        A mirror's callback runs on the cell's thread while the scan (the user's thread) may
+        destroy its publisher: rclpy then raises InvalidHandle (a RuntimeError), which would
+        otherwise end that side's thread and every mirror with it.
+        """
+        try:
+            executor.spin_once(timeout_sec=0.1)
+        except RuntimeError as exc:
+            node.get_logger().warning(f'callback skipped: {exc!r}', throttle_duration_sec=5.0)
 
     def close(self) -> None:
         """Destroy both sides' nodes and contexts."""

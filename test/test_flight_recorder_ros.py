@@ -72,7 +72,10 @@ def test_a_frozen_sim_leaves_a_flight_log_of_the_safe_mode(tmp_path):
     assert t_freeze < t_dump < t_freeze + FREEZE_S, (t_freeze, t_dump)
     assert bag.parent == flight_dir and bag.is_dir(), bag
     log = load_run(bag)
-    assert 1.5 <= log.t[-1] <= 2.5 and log.theta_names == ('m_joint1', 'm_joint2')
+    # the ring's 2000 ticks (2 s at 1 kHz; longer when the watchdog ticked during the freeze,
+    # 2.64 s seen in a clean-clone run): a bound on rows, not on this machine's timing
+    assert 1.5 <= log.t[-1] and 1000 <= log.t.size <= 2000, (log.t[-1], log.t.size)
+    assert log.theta_names == ('m_joint1', 'm_joint2')
     with AnyReader([bag], default_typestore=TYPESTORE) as reader:
         conns = {c.topic: c for c in reader.connections}
         modes = [reader.deserialize(raw, c.msgtype).data

@@ -18,11 +18,13 @@ off (the true force and ``/clock`` keep the sim's time).
 Real time: physics runs on wall time. A timer at ``rate_hz`` integrates every period that
 has passed since the last callback (a late callback catches up, at most
 ``max_catch_up`` periods; older time is dropped and counted) with the last command held,
-as a ros2_control effort controller holds it, and zero effort for the periods that ended
-more than ``command_timeout`` after it; then it publishes the newest state once. A command
-first lets the periods that ended before it run on the old one. So the arm falls when
-the controller stops even if this node was held meanwhile (a publish can block on a
-stopped reader's shared-memory port in Fast DDS).
+as a ros2_control effort controller holds it, and the watchdog's action for the periods that
+ended more than ``command_timeout`` after it (``watchdog_action``: ``zero`` effort, the arm
+falls; or ``brake``, it stops and holds, as a Franka's reflex or a UR's protective stop, until
+the next valid command); then it publishes the newest state once. A command first lets the
+periods that ended before it run on the old one. So the watchdog acts when the controller
+stops even if this node was held meanwhile (a publish can block on a stopped reader's
+shared-memory port in Fast DDS, or the whole machine can stall).
 Lockstep (``lockstep:=true``, the deterministic reproduction mode) owns the time: it
 publishes the state and ``/clock`` (equal stamps) and steps once per received command; a
 0.2 s wall watchdog steps anyway (held or zero effort, brakes before the first command), so
@@ -68,7 +70,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, Header, String
 
 from .plants import make_plant, touch_offset
-from .sim_params import HELP_PARAMETERS, SIM_SCHEMA, SURFACE, UNIT
+from .sim_params import HELP_PARAMETERS, SIM_SCHEMA, SURFACE, UNIT, WATCHDOG_ACTIONS
 from .sim_surface import surface_from_values
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'held_periods', 'main']
@@ -113,6 +115,8 @@ class SimNode(Node):
                                       self._surface, self._set_surface, unit=UNIT)
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
         self.command_timeout, self.max_catch_up = v['command_timeout'], v['max_catch_up']
+        check_choice('watchdog_action', v['watchdog_action'], WATCHDOG_ACTIONS)
+        self.brake_on_timeout = v['watchdog_action'] == 'brake'
         # sensor clocks off by a constant (a driver on an unsynced PC), ns
         self.js_offset_ns = round(v['joint_state_clock_offset'] * 1e9)
         self.ft_offset_ns = round(v['wrench_clock_offset'] * 1e9)
@@ -275,8 +279,8 @@ class SimNode(Node):
         Step ``periods`` from ``t_begin`` (on :meth:`_time`'s clock), then publish.
 
         The watchdog (:func:`held_periods`): the command for the periods that end within
-        ``command_timeout`` of it, zero effort after (one count and warning per timeout);
-        brakes before the first command.
+        ``command_timeout`` of it, zero effort or the brakes after (``watchdog_action``; one
+        count and warning per timeout); brakes before the first command.
         """
         held = periods if self.tau_cmd is None else held_periods(
             t_begin, periods, self.dt, self.t_cmd, self.command_timeout)
@@ -286,10 +290,11 @@ class SimNode(Node):
         if not self._timed_out:
             self._timed_out = True
             self.counters['command_timeouts'] += 1
-            self.get_logger().warning('no valid command within command_timeout: zero effort')
+            self.get_logger().warning('no valid command within command_timeout: ' + (
+                'brakes on' if self.brake_on_timeout else 'zero effort'))
         if held:
             self._integrate(self.tau_cmd, held)
-        self._step(self.tau_zero, periods - held)
+        self._step(None if self.brake_on_timeout else self.tau_zero, periods - held)
 
     def _step(self, tau: np.ndarray | None, periods: int = 1) -> None:
         """``periods`` steps of 1/rate_hz, then publish (``None``: brakes hold the arm)."""
@@ -297,9 +302,8 @@ class SimNode(Node):
 
     def _integrate(self, tau: np.ndarray | None, periods: int) -> Measurement:
         t0 = time.perf_counter()
-        if tau is None:
-            self.sim.t += periods * self.dt
-            meas = self.sim.measure()
+        if tau is None:  # the brakes hold the arm still
+            meas = self.sim.hold(periods * self.dt)
         else:
             for _ in range(periods):
                 meas = self.sim.step(tau, self.dt)

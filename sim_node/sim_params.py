@@ -12,7 +12,9 @@ from hybrid_force_controller.ros.common.node_params import (CPU_AFFINITY_SPEC, E
 
 from .mujoco_params import MUJOCO_SCHEMA
 
-__all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE', 'UNIT']
+__all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE', 'UNIT', 'WATCHDOG_ACTIONS']
+
+WATCHDOG_ACTIONS = ('zero', 'brake')
 
 SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
            'surface_shape', 'surface_radius', 'surface_axis', 'sensor_frozen', 'sensor_offset')
@@ -47,8 +49,11 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
     ('substeps', 'integer', 2, 'Integration sub-steps per step (the offline scenarios use 2).',
      1, 1000, {}),
-    ('command_timeout', 'double', 0.1, 'Zero effort after this long without a command, s '
-     '(sim time in lockstep).', 1e-6, 60.0, {}),
+    ('command_timeout', 'double', 0.1, 'The watchdog acts after this long without a '
+     'command, s (sim time in lockstep).', 1e-6, 60.0, {}),
+    ('watchdog_action', 'string', 'zero', "What the arm does after command_timeout: 'zero' "
+     "(torque off: it falls, a bare torque interface) or 'brake' (it stops and holds, as a "
+     "Franka's reflex or a UR's protective stop; the next valid command releases it).", {}),
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
     ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
      'integrates (older time is dropped and counted).', 1, 100000, {}),
@@ -70,7 +75,8 @@ HELP_PARAMETERS = (
     ('sensor_offset', "the F/T sensor's bias, N, sensor frame (settable)"),
     ('noise_sigma, seed', 'force sensor noise'),
     ('joint_state_clock_offset, wrench_clock_offset', 'added to the sensor stamps, s'),
-    ('command_timeout', 'zero effort after this long without a command'),
+    ('command_timeout', 'the watchdog acts after this long without a command'),
+    ('watchdog_action', "'zero' (default: torque off, the arm falls) or 'brake' (it holds)"),
     ('max_catch_up', 'most periods a late timer callback integrates'),
     ('robot_description', "URDF XML, .urdf or .xacro path ('': the paper's 2-link arm)"),
 )

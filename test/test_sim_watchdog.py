@@ -88,3 +88,48 @@ def test_a_command_after_a_held_thread_first_runs_the_missed_periods(sim):
     time.sleep(0.01)
     sim._advance()  # the timer's call: the periods since run on the new command
     assert sim.counters['command_timeouts'] == 1
+
+
+@pytest.mark.parametrize('action', ['zero', 'brake'])
+def test_the_watchdog_action_lets_the_arm_fall_or_brakes_it(action):
+    """
+    After ``command_timeout``: zero effort (the arm falls) or the brakes (it stops and holds).
+
+    The surface is off and the first command is no effort at all, so the arm is already
+    falling when the watchdog acts. 0.5 s held: 200 periods on that command, 300 after it.
+    """
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('sim_watchdog'))
+    sim = SimNode(context=context, parameter_overrides=[
+        Parameter('command_timeout', value=TIMEOUT_S), Parameter('max_catch_up', value=10000),
+        Parameter('surface_enabled', value=False), Parameter('watchdog_action', value=action)])
+    try:
+        sim._on_command(_command([0.0, 0.0]))
+        q0 = sim.sim.q.copy()
+        time.sleep(0.5)  # the stimulus: the sim's thread held past command_timeout
+        sim._advance()
+        assert sim.counters['command_timeouts'] == 1
+        moved = np.abs(sim.sim.q - q0).max()
+        assert moved > 0.01, moved  # it fell during the 0.2 s of the held command
+        if action == 'brake':
+            assert np.all(sim.sim.qdot == 0.0), sim.sim.qdot
+            q_held = sim.sim.q.copy()
+            time.sleep(0.05)
+            sim._advance()
+            assert np.array_equal(sim.sim.q, q_held)  # held still while no command comes
+        else:
+            assert np.abs(sim.sim.qdot).max() > 1.0, sim.sim.qdot  # still falling, faster
+    finally:
+        sim.destroy_node()
+        context.try_shutdown()
+
+
+def test_an_unknown_watchdog_action_is_refused():
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('sim_watchdog'))
+    try:
+        with pytest.raises(ValueError, match='watchdog_action must be one of'):
+            SimNode(context=context, parameter_overrides=[
+                Parameter('watchdog_action', value='float')])
+    finally:
+        context.try_shutdown()

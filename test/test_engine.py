@@ -23,13 +23,14 @@ import pytest
 P = 1e-3
 
 
-def engine(timing: TimingModel, horizon: float = 1.0, **overrides) -> LoopEngine:
+def engine(timing: TimingModel, horizon: float = 1.0, watchdog_action: str = 'zero',
+           **overrides) -> LoopEngine:
     model = RobotModel.from_urdf()
     rt = ControllerRuntime(model, build_params(model, overrides))
     q0 = np.array(PAPER_Q0)
     p0 = model.kinematics(q0, np.zeros(2)).p_W
     sim = ArmSimulator(model, ElasticSurface.create(1700.0, p0, rt.params.law.n), q0, substeps=2)
-    return LoopEngine(rt, sim, horizon, timing)
+    return LoopEngine(rt, sim, horizon, timing, watchdog_action=watchdog_action)
 
 
 # ------------------------------------------------------------------ the timing model
@@ -83,6 +84,31 @@ def test_the_arms_watchdog_zeroes_the_effort_while_its_driver_stalls():
             zero.append(e.tau_plant.copy())
     assert np.all(np.array(held) == held[0]) and np.abs(held[0]).max() > 1.0
     assert not np.any(zero) and e.command_timeouts == 1
+
+
+def test_a_braking_watchdog_holds_the_arm_still_until_the_next_command():
+    """
+    ``watchdog_action='brake'``: after command_timeout the plant holds the arm (no effort,
+    no motion, as a Franka's reflex stops it); the first command after the stall releases it.
+    """
+    e = engine(TimingModel(stalls=(Stall('plant', 0.100, 0.300),)), 0.5, 'brake')
+    braked, q_braked, released = [], [], False
+    while e.k < e.steps:
+        e.step()
+        t = e.t - P
+        if 0.202 <= t < 0.400:
+            braked.append(e.tau_plant is None)
+            q_braked.append(e.plant.q.copy())
+        elif t >= 0.41:
+            released |= e.tau_plant is not None
+    assert all(braked) and e.command_timeouts == 1
+    assert np.all(np.array(q_braked) == q_braked[0])  # held still through the stall
+    assert released
+
+
+def test_an_unknown_watchdog_action_is_refused():
+    with pytest.raises(ValueError, match='watchdog_action must be one of'):
+        engine(TimingModel(), 0.1, 'float')
 
 
 def test_tick_on_state_ticks_once_per_state():

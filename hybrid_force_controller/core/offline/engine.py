@@ -10,7 +10,8 @@ latency; the controller ticks on a timer (or on each new state) and its effort r
 plant after a latency; either process can stall (a scheduler hiccup, SIGSTOP), during
 which it neither publishes nor reads, while the plant's physics goes on with the command
 it holds, for at most ``command_timeout``: then the plant applies zero effort, as the sim's
-watchdog and a torque-controlled arm's do (the arm falls), also while the plant's own
+watchdog and a bare torque interface do (the arm falls), or brakes (``watchdog_action``, as a
+Franka's reflex stops the arm), also while the plant's own
 process stalls (the watchdog of an arm's firmware does not wait for its driver; before, the
 held command drove the paper's arm 9 cm along the surface in a 300 ms stall). Times are
 integer nanoseconds inside, so equal times compare exactly; ``TimingModel.lockstep(d)``
@@ -28,9 +29,11 @@ from .environment import sensor_wrench_from_f_W
 from .timing import Schedule, TimingModel
 from ..runtime.controller_runtime import ControllerRuntime, Mode
 
-__all__ = ['COMMAND_TIMEOUT_S', 'Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop']
+__all__ = ['COMMAND_TIMEOUT_S', 'Event', 'LoopEngine', 'LoopLog', 'Plant', 'run_loop',
+           'WATCHDOG_ACTIONS']
 
 COMMAND_TIMEOUT_S = 0.1  # the plant's watchdog, as the sim node's default command_timeout
+WATCHDOG_ACTIONS = ('zero', 'brake')  # what the plant does after it (the sim node's choices)
 
 
 class Plant(Protocol):
@@ -109,7 +112,9 @@ class LoopEngine:
     to drop the message (fault injection). ``clock_ns`` (e.g. ``time.perf_counter_ns``,
     injected by a benchmark) times every ``runtime.tick`` into ``LoopLog.tick_ns``.
     ``command_timeout`` (s, plant time; ``math.inf``: never) is the plant's watchdog: a
-    command older than this is replaced by zero effort, as the sim node does.
+    command older than this is replaced by zero effort (``watchdog_action`` ``zero``: the arm
+    falls) or by the brakes (``brake``: the arm stops and holds until the next command), as
+    the sim node's ``watchdog_action`` does.
     """
 
     def __init__(self, runtime: ControllerRuntime, plant: Plant, horizon: float,
@@ -117,9 +122,14 @@ class LoopEngine:
                  wrench_frame: str | None = None,
                  input_hook: Callable[[float, Any], Any] | None = None,
                  clock_ns: Callable[[], int] | None = None,
-                 command_timeout: float = COMMAND_TIMEOUT_S) -> None:
+                 command_timeout: float = COMMAND_TIMEOUT_S,
+                 watchdog_action: str = 'zero') -> None:
         if not command_timeout > 0.0:
             raise ValueError(f'command_timeout must be > 0, got {command_timeout!r}')
+        if watchdog_action not in WATCHDOG_ACTIONS:
+            raise ValueError(f'watchdog_action must be one of {list(WATCHDOG_ACTIONS)}, '
+                             f'got {watchdog_action!r}')
+        self._brake = watchdog_action == 'brake'
         self.runtime, self.plant = runtime, plant
         self.schedule = Schedule(timing, horizon)
         self.steps = int(round(horizon * 1e9 / self.schedule.period_ns))
@@ -171,10 +181,10 @@ class LoopEngine:
         return meas
 
     def _watchdog(self, t_k: int) -> None:
-        """Zero the held command once it is older than the plant's ``command_timeout``."""
+        """Zero the held command, or brake, once it is older than ``command_timeout``."""
         limit, tau = self._timeout_ns, self.tau_plant
         if limit is not None and tau is not None and t_k - self._t_cmd > limit and tau.any():
-            self.tau_plant = np.zeros_like(tau)
+            self.tau_plant = None if self._brake else np.zeros_like(tau)  # None: the brakes
             self.command_timeouts += 1
 
     def _tick(self, t_tick: int) -> Any:

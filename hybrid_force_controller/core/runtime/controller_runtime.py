@@ -144,6 +144,8 @@ class ControllerRuntime(RuntimeInterface):
             self.ctrl.set_force_setpoint(*self._motion.force_step(dt_state))
         f_n = float(self._normal.n_W.dot(f_W))
         touching = self._contact.update(f_n, self.ctrl.f_d, self._in.state.t)
+        if touching:
+            self._motion.note_contact(self._in.kin().x)
         if self._normal.enabled and dt_state > 0.0:  # the normal estimate (surface.py)
             self._normal.update(f_W, self._in.kin(), dt_state, touching, self._motion)
         if touching and self._in.tare is not None:
@@ -310,15 +312,16 @@ class ControllerRuntime(RuntimeInterface):
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
         """Hold (effort.SafeHold): a smooth stop, impedance only while the joint state is fresh."""
         law, s = self._params.law, self._in.state
+        fresh = t - s.t <= self._params.runtime.state_timeout
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
             self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
-            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last)
+            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last,
+                             fresh)
             self._clock.pause(s.t)  # the reference pauses (_start)
             self._motion.pause_path()
         self.mode = Mode.SAFE
-        fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
                                      law.k_null, fresh)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)

@@ -4,7 +4,7 @@ The pinned figures of the deterministic runs (issue 31, item 1): test/pinned_fig
 One file holds them all: the commit whose code computed them, a note, the tolerance and, per
 scenario, its figures (numbers only: what the scenario's metrics function returns, less the
 wall time, strings, booleans and NaN). :func:`check_pinned` compares a scenario's figures with
-its pins, every figure at ``rel_tol`` (an absolute floor only for a figure pinned at ~0), or at
+its pins, every figure at ``rel_tol`` (an absolute floor only for a figure pinned at 0), or at
 the tolerances the file's ``not_bit_exact`` entry gives a scenario that does not repeat bit for
 bit (the lockstep demo; its note says why and how they were measured). With
 ``HFC_PIN_UPDATE=1`` in the environment it writes the scenario's figures into the file instead,
@@ -30,12 +30,13 @@ UPDATE_VAR = 'HFC_PIN_UPDATE'
 # force errors: ~1e-5 N differences of ~1 N forces). 1e-6 leaves 20x that for another machine's
 # roundoff and still catches any change of the law or the loop, far below its tests' bounds.
 REL_TOL = 1e-6
-# A figure pinned at ~0 (contact_lost_s = 0: no sample out of contact) has no relative scale;
-# 1e-12 in its own unit (s, m, N) is roundoff of a sum of 1 ms steps, an exact 0 in practice.
+# A figure pinned at 0 (contact_lost_s: no sample out of contact; the lockstep demo's normal
+# error: n_hat is n) has no relative scale: it may differ by 1e-12 in its unit (s, deg), an
+# exact 0 in practice. Every other figure, however small, is compared at the relative tolerance.
 ABS_FLOOR = 1e-12
 NOTE = ('Pinned figures of the deterministic runs (test/pins.py, test/test_pinned_figures.py, '
         'test/test_demo.py). "commit": the code that computed them. Every figure is compared '
-        'at rel_tol (abs_floor for a figure pinned at ~0), or at the tolerances of its '
+        'at rel_tol (abs_floor for a figure pinned at 0), or at the tolerances of its '
         'scenario in not_bit_exact. A change is made on purpose: HFC_PIN_UPDATE=1 rewrites '
         'the figures; the commit that changes this file says why.')
 
@@ -77,8 +78,9 @@ def mismatches(scenario: str, pinned: Figures, got: Figures, rel_tol: float = RE
     """
     Return one line per figure of ``got`` that is not its pin (or has none), else [].
 
-    A figure is its pin within ``max(rel_tol * |pin|, abs_floor)``; ``rel_tol_by_figure``
-    replaces ``rel_tol`` for the figures it names (a run that is not bit-exact).
+    A figure is its pin within ``rel_tol * |pin|`` (``abs_floor`` for a pin of 0);
+    ``rel_tol_by_figure`` replaces ``rel_tol`` for the figures it names (a run that is not
+    bit-exact).
     """
     lines = []
     by_figure = rel_tol_by_figure or {}
@@ -98,7 +100,7 @@ def mismatches(scenario: str, pinned: Figures, got: Figures, rel_tol: float = RE
                  if isinstance(p, list) else [(name, p, g)])
         rel = by_figure.get(name, rel_tol)
         for label, a, b in pairs:
-            tol = max(rel * abs(a), abs_floor)
+            tol = rel * abs(a) if a else abs_floor
             if not abs(b - a) <= tol:
                 diff = abs(b - a) / abs(a) if a else math.inf
                 lines.append(f'{scenario}: {label}: pinned {a!r}, got {b!r} '

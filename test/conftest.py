@@ -23,19 +23,19 @@ os.environ.setdefault('ROS_DOMAIN_ID', '42')
 # The suite's cells run on ROS_DOMAIN_ID itself (HFC_CELL_DOMAIN_ID=off), as before the gateway:
 # their tests inject faults into the 1 kHz topics and count them at the sim, which a plant-side
 # tool does on the cell's own domain. test_gateway and test_demo run the default (the cell
-# domain behind the gateway) and say so (ros_helpers.ISOLATED).
+# domain behind the gateway) and say so (helpers.ros.ISOLATED).
 os.environ['HFC_CELL_DOMAIN_ID'] = 'off'
 # The controllers' flight recorder writes under $ROS_HOME (every shutdown whose sim stops first
 # looks like a lost input to it): the suite's dumps go to a directory of the run, not ~/.ros
 os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='hfc_suite_ros_home_')
 # The test process and the observers it starts (recorders, programs) on UDP loopback, with no
 # shared-memory port (config/fastdds_loopback.xml); the sims and controllers keep shared memory
-# (ros_helpers.node_env). Fast DDS's port health check stalled the cell 333 ms at random when a
+# (helpers.ros.node_env). Fast DDS's port health check stalled the cell 333 ms at random when a
 # reader joined it (docs/results.md, section 13), the suite's last flake. A caller's own
 # FASTRTPS_DEFAULT_PROFILES_FILE is kept.
 use_loopback_dds()
 
-import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any test module loads)
+import helpers.ros  # noqa: E402,F401,I100  (fixes the run's base domain before the modules load)
 
 
 # The suite runs on two workers (README: ``-n 2 --dist loadgroup``). Modules that start nodes,

@@ -6,6 +6,7 @@ test starts the controller node for the Panda as a subprocess in its own ROS dom
 """
 from pathlib import Path
 
+from helpers.ros import domain_id, NodeProcess, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.parameter_sets import project_physical
 from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
                                                             RobotModel)
@@ -18,7 +19,6 @@ from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pinocchio as pin
 import pytest
-from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 
 
 PLANAR3 = Path(__file__).resolve().parent / 'three_link_planar.urdf'

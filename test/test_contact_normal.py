@@ -18,6 +18,7 @@ import math
 import threading
 
 from geometry_msgs.msg import Vector3Stamped
+from helpers.ros import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import make_surface
 import numpy as np
@@ -25,7 +26,6 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 
 CONFIG = ROOT / 'config'
 MODEL = RobotModel.from_urdf()

@@ -11,10 +11,10 @@ import re
 import subprocess
 import sys
 
+from helpers.ros import domain_id, ISOLATED
 from hybrid_force_controller.tools.bag_io import load_run, RECORD_TOPICS
 import numpy as np
 import pytest
-from ros_helpers import domain_id, ISOLATED
 from rosbags.highlevel import AnyReader
 
 

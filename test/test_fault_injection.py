@@ -2,7 +2,7 @@
 Fault injection over real DDS: bad inputs and process faults against the real nodes.
 
 One ``sim`` process (lockstep, owns /clock) and one controller process (``use_sim_time``)
-run for the whole module; this process sits between them (see ``fault_harness``): it
+run for the whole module; this process sits between them (see ``helpers.fault_rig``): it
 forwards the sim's joint states and wrench to the controller through fault hooks, injects
 bad messages, sets parameters, kills and restarts processes. Around every case the rig
 checks (1) the controller process is alive, (2) every effort it published was finite and
@@ -18,13 +18,13 @@ Seeds are fixed (the sim's noise is off; nothing here is random).
 import math
 import signal
 
-from fault_harness import Rig, set_stamp, stamp_s  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from helpers.fault_rig import Rig, set_stamp, stamp_s  # noqa: E402
+from helpers.ros import domain_id  # noqa: E402
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from ros_helpers import domain_id  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
 

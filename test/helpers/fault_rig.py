@@ -25,6 +25,7 @@ from typing import Any, Callable, Iterator
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import NodeProcess, parse_diagnostics, stamp_s
 import numpy as np
 import rclpy
 from rclpy.context import Context
@@ -33,7 +34,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import NodeProcess, parse_diagnostics, stamp_s
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension

@@ -33,7 +33,7 @@ from typing import Any, Callable, Iterable, Sequence
 from hybrid_force_controller.ros.programs.launch import cell_env
 
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository (this is test/helpers/ros.py)
 PARAMS_FILE = ROOT / 'config' / 'params.yaml'
 WALL_TIMEOUT = 120.0  # only against hangs
 CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller.controller_node'

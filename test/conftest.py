@@ -41,9 +41,12 @@ import helpers.ros  # noqa: E402,F401,I100  (fixes the run's base domain before 
 # The suite runs on two workers (README: ``-n 2 --dist loadgroup``). Modules that start nodes,
 # talk DDS or time a real-time loop run one after the other on one worker, as the group 'ros'
 # (first, since it is the longest); the offline modules below share the other worker. A module
-# not listed here is serial by default: a new real-time test never runs beside another one.
+# not listed here is serial by default: a new real-time test never runs beside another one. An
+# offline module's test that starts a node says so with ``@pytest.mark.dds`` (test_any_arm):
+# it alone joins the serial group.
 OFFLINE_MODULES = {
-    'test_analysis', 'test_cdr', 'test_closed_loop_offline', 'test_control_law', 'test_engine',
+    'test_analysis', 'test_any_arm', 'test_cdr', 'test_cell_trial_figures',
+    'test_closed_loop_offline', 'test_control_law', 'test_engine',
     'test_filters_env', 'test_flake8', 'test_flight_recorder', 'test_force_target_and_tare',
     'test_input_plausibility',
     'test_layers', 'test_loop_stats', 'test_margin', 'test_model_construction',
@@ -53,15 +56,32 @@ OFFLINE_MODULES = {
     'test_pep257', 'test_recovery', 'test_report', 'test_report_normal', 'test_report_path',
     'test_singularity',
     'test_runtime', 'test_runtime_changes', 'test_stalls', 'test_stiffness',
-    'test_stiffness_closed_loop', 'test_stiffness_loop', 'test_stiffness_tools',
-    'test_surface_shapes', 'test_tool_gravity',
+    'test_stiffness_closed_loop', 'test_stiffness_guards', 'test_stiffness_loop',
+    'test_stiffness_tools', 'test_surface_shapes', 'test_tool_gravity',
 }
+
+
+def pytest_configure(config):
+    config.addinivalue_line('markers', 'dds: a test of an offline module that starts nodes or '
+                            'talks DDS (it runs in the serial group)')
+
+
+def _serial(item) -> bool:
+    return (item.module.__name__ not in OFFLINE_MODULES
+            or item.get_closest_marker('dds') is not None)
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's worker adds the group to the node ids
 def pytest_collection_modifyitems(config, items):
-    """Put every test of a module that is not offline into the serial group 'ros', first."""
+    """Put every test that is not offline into the serial group 'ros', first."""
     for item in items:
-        if item.module.__name__ not in OFFLINE_MODULES:
+        if _serial(item):
             item.add_marker(pytest.mark.xdist_group('ros'))
-    items.sort(key=lambda item: item.module.__name__ in OFFLINE_MODULES)  # stable
+    items.sort(key=lambda item: not _serial(item))  # stable
+
+
+@pytest.fixture(scope='module')
+def model():
+    """Give each module the model of the bundled 2-link arm (the paper's)."""
+    from hybrid_force_controller.core.model.robot_model import RobotModel
+    return RobotModel.from_urdf()

@@ -1,12 +1,13 @@
 """
 Any arm from a URDF: redundant, spatial and 7-DOF arms, parameter sets, bad chains.
 
-Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds); the last
-test starts the controller node for the Panda as a subprocess in its own ROS domain.
+Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds) beside the other
+offline modules; the last test starts the controller node for the Panda as a subprocess in its
+own ROS domain (``dds``: it alone runs in the serial group, conftest.py).
 """
 from pathlib import Path
 
-from helpers.ros import domain_id, NodeProcess, Spun, wait_for, wait_future
+from helpers.ros import CONTROLLER_MODULE, domain_id, NodeProcess, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.parameter_sets import project_physical
 from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
                                                             RobotModel)
@@ -311,7 +312,7 @@ def panda_node(tmp_path):
             '-p', 'end_effector_link:=panda_hand_tcp',
             '-p', f'joints:=[{",".join(PANDA_JOINTS)}]',
             '-p', 'gravity:=[0.0,0.0,-9.81]', '-p', 'n:=[0.0,0.0,-1.0]']
-    proc = NodeProcess('hybrid_force_controller.ros.controller.controller_node',
+    proc = NodeProcess(CONTROLLER_MODULE,
                        tmp_path / 'controller.log',
                        DOMAIN_ID, args, params_file=None)
     spun = Spun(DOMAIN_ID)
@@ -324,6 +325,7 @@ def panda_node(tmp_path):
         spun.close()
 
 
+@pytest.mark.dds
 def test_controller_node_starts_for_the_panda(panda_node):
     from rclpy.parameter import parameter_value_to_python
     from rclpy.parameter_client import AsyncParameterClient

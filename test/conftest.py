@@ -85,3 +85,37 @@ def model():
     """Give each module the model of the bundled 2-link arm (the paper's)."""
     from hybrid_force_controller.core.model.robot_model import RobotModel
     return RobotModel.from_urdf()
+
+
+@pytest.fixture(scope='module')
+def fault_rig(request, tmp_path_factory):
+    """
+    Start the lockstep fault-injection rig (helpers.fault_rig) for the module, tracking.
+
+    Its domain is the module's (``domain_id`` of its name without ``test_``).
+    """
+    from helpers.fault_cases import start_rig
+    name = request.module.__name__.removeprefix('test_')
+    rig = start_rig(tmp_path_factory.mktemp(name), helpers.ros.domain_id(name))
+    try:
+        yield rig
+    finally:
+        rig.close()
+
+
+@pytest.fixture
+def healthy(fault_rig, request):
+    """
+    Give a case the rig, tracking; after a case that failed, reset it first.
+
+    Nothing is hidden: a case that fails is reported as such, and a rig that is not tracking
+    although no case failed fails the next case's set-up (the reset is for a failure already
+    reported).
+    """
+    if fault_rig.broken:
+        fault_rig.reset()
+    fault_rig.broken = True  # until this case has passed
+    fault_rig.wait_tracking(3.0, 'before the case', fresh=False)
+    failed = request.session.testsfailed
+    yield fault_rig
+    fault_rig.broken = request.session.testsfailed > failed

@@ -23,27 +23,30 @@ os.environ.setdefault('ROS_DOMAIN_ID', '42')
 # The suite's cells run on ROS_DOMAIN_ID itself (HFC_CELL_DOMAIN_ID=off), as before the gateway:
 # their tests inject faults into the 1 kHz topics and count them at the sim, which a plant-side
 # tool does on the cell's own domain. test_gateway and test_demo run the default (the cell
-# domain behind the gateway) and say so (ros_helpers.ISOLATED).
+# domain behind the gateway) and say so (helpers.ros.ISOLATED).
 os.environ['HFC_CELL_DOMAIN_ID'] = 'off'
 # The controllers' flight recorder writes under $ROS_HOME (every shutdown whose sim stops first
 # looks like a lost input to it): the suite's dumps go to a directory of the run, not ~/.ros
 os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='hfc_suite_ros_home_')
 # The test process and the observers it starts (recorders, programs) on UDP loopback, with no
 # shared-memory port (config/fastdds_loopback.xml); the sims and controllers keep shared memory
-# (ros_helpers.node_env). Fast DDS's port health check stalled the cell 333 ms at random when a
+# (helpers.ros.node_env). Fast DDS's port health check stalled the cell 333 ms at random when a
 # reader joined it (docs/results.md, section 13), the suite's last flake. A caller's own
 # FASTRTPS_DEFAULT_PROFILES_FILE is kept.
 use_loopback_dds()
 
-import ros_helpers  # noqa: E402,F401  (fixes the run's base domain before any test module loads)
+import helpers.ros  # noqa: E402,F401,I100  (fixes the run's base domain before the modules load)
 
 
 # The suite runs on two workers (README: ``-n 2 --dist loadgroup``). Modules that start nodes,
 # talk DDS or time a real-time loop run one after the other on one worker, as the group 'ros'
 # (first, since it is the longest); the offline modules below share the other worker. A module
-# not listed here is serial by default: a new real-time test never runs beside another one.
+# not listed here is serial by default: a new real-time test never runs beside another one. An
+# offline module's test that starts a node says so with ``@pytest.mark.dds`` (test_any_arm):
+# it alone joins the serial group.
 OFFLINE_MODULES = {
-    'test_analysis', 'test_cdr', 'test_closed_loop_offline', 'test_control_law', 'test_engine',
+    'test_analysis', 'test_any_arm', 'test_cdr', 'test_cell_trial_figures',
+    'test_closed_loop_offline', 'test_control_law', 'test_engine',
     'test_filters_env', 'test_flake8', 'test_flight_recorder', 'test_force_target_and_tare',
     'test_input_plausibility',
     'test_layers', 'test_loop_stats', 'test_margin', 'test_model_construction',
@@ -53,15 +56,66 @@ OFFLINE_MODULES = {
     'test_pep257', 'test_pinned_figures', 'test_recovery', 'test_report', 'test_report_normal',
     'test_report_path', 'test_singularity',
     'test_runtime', 'test_runtime_changes', 'test_stalls', 'test_stiffness',
-    'test_stiffness_closed_loop', 'test_stiffness_loop', 'test_stiffness_tools',
-    'test_surface_shapes', 'test_tool_gravity',
+    'test_stiffness_closed_loop', 'test_stiffness_guards', 'test_stiffness_loop',
+    'test_stiffness_tools', 'test_surface_shapes', 'test_tool_gravity',
 }
+
+
+def pytest_configure(config):
+    config.addinivalue_line('markers', 'dds: a test of an offline module that starts nodes or '
+                            'talks DDS (it runs in the serial group)')
+
+
+def _serial(item) -> bool:
+    return (item.module.__name__ not in OFFLINE_MODULES
+            or item.get_closest_marker('dds') is not None)
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's worker adds the group to the node ids
 def pytest_collection_modifyitems(config, items):
-    """Put every test of a module that is not offline into the serial group 'ros', first."""
+    """Put every test that is not offline into the serial group 'ros', first."""
     for item in items:
-        if item.module.__name__ not in OFFLINE_MODULES:
+        if _serial(item):
             item.add_marker(pytest.mark.xdist_group('ros'))
-    items.sort(key=lambda item: item.module.__name__ in OFFLINE_MODULES)  # stable
+    items.sort(key=lambda item: not _serial(item))  # stable
+
+
+@pytest.fixture(scope='module')
+def model():
+    """Give each module the model of the bundled 2-link arm (the paper's)."""
+    from hybrid_force_controller.core.model.robot_model import RobotModel
+    return RobotModel.from_urdf()
+
+
+@pytest.fixture(scope='module')
+def fault_rig(request, tmp_path_factory):
+    """
+    Start the lockstep fault-injection rig (helpers.fault_rig) for the module, tracking.
+
+    Its domain is the module's (``domain_id`` of its name without ``test_``).
+    """
+    from helpers.fault_cases import start_rig
+    name = request.module.__name__.removeprefix('test_')
+    rig = start_rig(tmp_path_factory.mktemp(name), helpers.ros.domain_id(name))
+    try:
+        yield rig
+    finally:
+        rig.close()
+
+
+@pytest.fixture
+def healthy(fault_rig, request):
+    """
+    Give a case the rig, tracking; after a case that failed, reset it first.
+
+    Nothing is hidden: a case that fails is reported as such, and a rig that is not tracking
+    although no case failed fails the next case's set-up (the reset is for a failure already
+    reported).
+    """
+    if fault_rig.broken:
+        fault_rig.reset()
+    fault_rig.broken = True  # until this case has passed
+    fault_rig.wait_tracking(3.0, 'before the case', fresh=False)
+    failed = request.session.testsfailed
+    yield fault_rig
+    fault_rig.broken = request.session.testsfailed > failed

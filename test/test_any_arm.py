@@ -1,11 +1,13 @@
 """
 Any arm from a URDF: redundant, spatial and 7-DOF arms, parameter sets, bad chains.
 
-Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds); the last
-test starts the controller node for the Panda as a subprocess in its own ROS domain.
+Closed loops run on the offline simulator (pure numpy + pinocchio, fixed seeds) beside the other
+offline modules; the last test starts the controller node for the Panda as a subprocess in its
+own ROS domain (``dds``: it alone runs in the serial group, conftest.py).
 """
 from pathlib import Path
 
+from helpers.ros import CONTROLLER_MODULE, domain_id, NodeProcess, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.parameter_sets import project_physical
 from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
                                                             RobotModel)
@@ -18,7 +20,6 @@ from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pinocchio as pin
 import pytest
-from ros_helpers import domain_id, NodeProcess, Spun, wait_for, wait_future
 
 
 PLANAR3 = Path(__file__).resolve().parent / 'three_link_planar.urdf'
@@ -311,7 +312,7 @@ def panda_node(tmp_path):
             '-p', 'end_effector_link:=panda_hand_tcp',
             '-p', f'joints:=[{",".join(PANDA_JOINTS)}]',
             '-p', 'gravity:=[0.0,0.0,-9.81]', '-p', 'n:=[0.0,0.0,-1.0]']
-    proc = NodeProcess('hybrid_force_controller.ros.controller.controller_node',
+    proc = NodeProcess(CONTROLLER_MODULE,
                        tmp_path / 'controller.log',
                        DOMAIN_ID, args, params_file=None)
     spun = Spun(DOMAIN_ID)
@@ -324,6 +325,7 @@ def panda_node(tmp_path):
         spun.close()
 
 
+@pytest.mark.dds
 def test_controller_node_starts_for_the_panda(panda_node):
     from rclpy.parameter import parameter_value_to_python
     from rclpy.parameter_client import AsyncParameterClient

@@ -1,5 +1,5 @@
 """
-tools/cell_trial_figures.py on a synthetic MCAP bag (BagWriter, test_report.py's messages).
+tools/cell_trial_figures.py on a synthetic MCAP bag (BagWriter, helpers.bags' messages).
 
 10 s at 100 Hz, the path running from 2 to 8 s, f_d 1 N along n. The true force is 1.05 N,
 zero from 4.0 to 4.5 s (a whole-cell stall from 4.0 to 4.3 s, then 0.2 s to touch again) and
@@ -8,14 +8,13 @@ zero from 4.0 to 4.5 s (a whole-cell stall from 4.0 to 4.3 s, then 0.2 s to touc
 """
 from __future__ import annotations
 
+from helpers.bags import DT_NS, N_SURF, path_messages, T0_NS, wrench_msg, write_bag
 from hybrid_force_controller.tools.bag_io import (TOPIC_CONTACT_WRENCH, TOPIC_JOINT_STATES,
                                                   TOPIC_X, TYPESTORE)
 from hybrid_force_controller.tools.cell_trial_figures import (trial_figures,
                                                               urdf_velocity_limits)
 import numpy as np
 import pytest
-from test_report import DT_NS, N_SURF, T0_NS, wrench_msg, write_bag
-from test_report_path import path_messages
 
 STALL = (T0_NS * 1e-9 + 4.0, T0_NS * 1e-9 + 4.3)
 JOINTS = [f'panda_joint{i}' for i in range(1, 8)]

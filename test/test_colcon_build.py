@@ -12,8 +12,8 @@ from pathlib import Path
 import subprocess
 import sys
 
+from helpers.ros import domain_id, NodeProcess, Spun, wait_for
 import pytest
-from ros_helpers import domain_id, NodeProcess, Spun, wait_for
 
 
 REPO = Path(__file__).resolve().parents[1]

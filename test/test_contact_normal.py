@@ -18,6 +18,8 @@ import math
 import threading
 
 from geometry_msgs.msg import Vector3Stamped
+from helpers.figures import angle_deg
+from helpers.ros import domain_id, NodeProcess, ROOT, SIM_MODULE, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import make_surface
 import numpy as np
@@ -25,7 +27,6 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 
 CONFIG = ROOT / 'config'
 MODEL = RobotModel.from_urdf()
@@ -40,11 +41,6 @@ TOL_DEG = 1.0
 def _aside(tool_radius: float) -> list[float]:
     """Return a cylinder's top (R 0.3 m) 5 cm aside, 5 mm out: the tool 0.8 mm in, 9.6 deg."""
     return (P0 + (tool_radius - 0.005) * N_TILTED + 0.05 * T_TILTED).tolist()
-
-
-def _angle_deg(a, b) -> float:
-    c = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
-    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
 def _arg(name: str, value) -> list[str]:
@@ -84,7 +80,7 @@ class NormalWatcher:
 
 def _sim(tmp_path, name: str, files: list[str], args: list[str]) -> NodeProcess:
     files_args = [a for f in files for a in ('--params-file', str(CONFIG / f))]
-    return NodeProcess('sim_node.sim_node', tmp_path / f'{name}.log', domain_id('contact_normal'),
+    return NodeProcess(SIM_MODULE, tmp_path / f'{name}.log', domain_id('contact_normal'),
                        files_args + args, params_file=None)
 
 
@@ -103,14 +99,14 @@ def test_paper_physics_tilted_plane_then_a_cylinder_set_at_run_time(tmp_path):
         refused = [watcher.set_params(surface_shape='cone'),
                    watcher.set_params(surface_axis=[0.0, 1.0, 0.0])]  # n is tilted in x-y: z only
         unchanged = watcher.fresh(sim)
-    assert _angle_deg(tilted, N_TILTED) < TOL_DEG, tilted
+    assert angle_deg(tilted, N_TILTED) < TOL_DEG, tilted
     expected = make_surface('cylinder', 1700.0, point, N_TILTED, 0.3).normal_at(P0)
     print('paper: tilted', tilted, 'cylinder', on_cylinder, 'expected', expected)
-    assert _angle_deg(expected, N_TILTED) > 5.0  # the case is not trivial
-    assert _angle_deg(on_cylinder, expected) < TOL_DEG, (on_cylinder, expected)
+    assert angle_deg(expected, N_TILTED) > 5.0  # the case is not trivial
+    assert angle_deg(on_cylinder, expected) < TOL_DEG, (on_cylinder, expected)
     assert not refused[0].successful and 'surface shape must be one of' in refused[0].reason
     assert not refused[1].successful and 'perpendicular' in refused[1].reason
-    assert _angle_deg(unchanged, expected) < TOL_DEG
+    assert angle_deg(unchanged, expected) < TOL_DEG
 
 
 def test_mujoco_tilted_cylinder_and_its_shape_fixed_at_start_up(tmp_path):
@@ -127,8 +123,8 @@ def test_mujoco_tilted_cylinder_and_its_shape_fixed_at_start_up(tmp_path):
         refused = watcher.set_params(surface_shape='plane')
     expected = make_surface('cylinder', 1700.0, point, N_TILTED, 0.3).normal_at(P0)
     print('mujoco: at start', at_start, 'aside', aside, 'expected', expected)
-    assert _angle_deg(at_start, N_TILTED) < TOL_DEG, at_start
-    assert _angle_deg(aside, expected) < TOL_DEG, (aside, expected)
+    assert angle_deg(at_start, N_TILTED) < TOL_DEG, at_start
+    assert angle_deg(aside, expected) < TOL_DEG, (aside, expected)
     assert not refused.successful and 'fixed at start-up' in refused.reason, refused.reason
 
 

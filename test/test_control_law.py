@@ -27,11 +27,6 @@ Q0 = np.array(PAPER_Q0)
 DT = 1e-3
 
 
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
-
-
 def make_ctrl(model: RobotModel, **overrides) -> HybridForceController:
     """
     Build a controller with the gains of ``build_params(model, overrides)``.

@@ -17,9 +17,9 @@ import re
 import subprocess
 import sys
 
+from helpers.ros import domain_id, node_env, ROOT
 from hybrid_force_controller.ros.programs.launch import cell_env, PROFILE_VAR, use_loopback_dds
 import pytest
-from ros_helpers import domain_id, node_env, ROOT
 
 SHM = Path('/dev/shm')
 # Fast DDS names a shared-memory port (and its lock files) after its number, the RTPS port of

@@ -11,11 +11,11 @@ import re
 import subprocess
 import sys
 
+from helpers.ros import domain_id, ISOLATED
 from hybrid_force_controller.tools.bag_io import load_run, RECORD_TOPICS
 import numpy as np
 from pins import check_pinned, numbers
 import pytest
-from ros_helpers import domain_id, ISOLATED
 from rosbags.highlevel import AnyReader
 
 

@@ -1,7 +1,7 @@
 """
 The flight recorder in real time over DDS: a frozen sim puts the controller in safe mode.
 
-The sim (masses 50 % off) and the controller run on the wall clock (ros_helpers.RealTimeRig),
+The sim (masses 50 % off) and the controller run on the wall clock (helpers.ros.RealTimeRig),
 the controller's ``flight_recorder_dir`` in this test's directory. Once the force has settled
 at f_d, the sim's process is frozen (SIGSTOP) for 0.5 s: no joint state for longer than
 ``state_timeout``, so the controller enters safe mode, its control thread asks for a dump,
@@ -17,11 +17,11 @@ import signal
 import threading
 import time
 
+from helpers.ros import domain_id, RealTimeRig, wait_for
 from hybrid_force_controller.core.runtime.flight_recorder import MODES
 from hybrid_force_controller.core.runtime.modes import Mode
 from hybrid_force_controller.tools.bag_io import load_run, TYPESTORE
 from hybrid_force_controller.tools.flight_log import TOPIC_FLIGHT_MODE, TOPIC_FLIGHT_TRIGGER
-from ros_helpers import domain_id, RealTimeRig, wait_for
 from rosbags.highlevel import AnyReader
 
 FREEZE_S = 0.5

@@ -1,17 +1,17 @@
 """
 The desired force's ramp (law/force_reference.py, fed forward in eq. 11) and the sensor tare.
 
-Offline: the runtime on the paper's plant through the loop engine (test_runtime.Loop), and the
+Offline: the runtime on the paper's plant through the loop engine (helpers.offline.Loop), and the
 pure pieces alone. The tare's DDS side (the ~/tare service) is in test_task_interface.py.
 """
 from __future__ import annotations
 
+from helpers.offline import Loop
 from hybrid_force_controller.core.law.force_reference import ForceRamp
 from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 from hybrid_force_controller.core.runtime.tare import STILL_QDOT, Tare
 import numpy as np
 import pytest
-from test_runtime import Loop, model  # noqa: F401  (the module's fixture)
 
 
 def test_the_ramp_moves_at_its_rate_and_stops_on_the_target():

@@ -17,11 +17,11 @@ import math
 import subprocess
 import sys
 
+from helpers.ros import domain_id, RealTimeRig, ROOT, Spun, wait_for, wait_future
 from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
 from hybrid_force_controller.ros.programs.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
 import pytest
-from ros_helpers import domain_id, RealTimeRig, ROOT, Spun, wait_for, wait_future
 
 GATEWAY = '_hfc_gateway'
 

@@ -267,11 +267,6 @@ def glitch(dq):
 
 
 @pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
-
-
-@pytest.fixture(scope='module')
 def clean(model) -> Run:
     return Run(model, 3.0)
 

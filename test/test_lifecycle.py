@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 
+from helpers.ros import domain_id, ForceLog, NodeProcess, Spun, wait_for, wait_future
 from hybrid_force_controller.ros.common.cdr import read_float64_array
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -21,7 +22,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, ForceLog, NodeProcess, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 

@@ -13,7 +13,6 @@ import math
 
 from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
 from hybrid_force_controller.core.law.margin import axis_margin, delay_margin
-from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
 import numpy as np
@@ -21,11 +20,6 @@ import pytest
 
 
 Q0 = np.array(PAPER_Q0)
-
-
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
 
 
 def _holds(delay_steps: int, overrides: dict) -> bool:

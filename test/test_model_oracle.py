@@ -15,10 +15,9 @@ Interacting in Constrained Motion with Unknown Non-Rigid Environments".
 """
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
-import sys
 
+import closed_form_2link
 from hybrid_force_controller.core.model.robot_model import ModelError, RobotModel
 import numpy as np
 import pinocchio as pin
@@ -29,19 +28,6 @@ TEST_DIR = Path(__file__).resolve().parent
 SPATIAL_URDF = TEST_DIR / 'three_link_spatial.urdf'
 
 
-def _load_closed_form():
-    """Import ``closed_form_2link`` from this directory whatever pytest's import mode."""
-    if 'closed_form_2link' in sys.modules:
-        return sys.modules['closed_form_2link']
-    spec = importlib.util.spec_from_file_location('closed_form_2link',
-                                                  TEST_DIR / 'closed_form_2link.py')
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault('closed_form_2link', module)
-    spec.loader.exec_module(module)
-    return module
-
-
-closed_form_2link = _load_closed_form()
 ARM = closed_form_2link.TwoLinkArm()  # l1 = l2 = 1 m, m1 = 1.3 kg, m2 = 0.9 kg, g0 = 9.81
 
 N_STATES = 24

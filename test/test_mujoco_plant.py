@@ -14,9 +14,9 @@ The MuJoCo plant (``physics:=mujoco``) offline: fidelity, contact, sensor, frict
 """
 from __future__ import annotations
 
+from helpers.offline import mujoco_arm, mujoco_press, R_TOOL
 from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.offline.arm7 import panda_model, PANDA_Q0, panda_urdf_path
 from hybrid_force_controller.core.offline.engine import run_loop
 from hybrid_force_controller.core.offline.environment import (ElasticSurface,
                                                               sensor_wrench_from_f_W, SurfaceError)
@@ -29,37 +29,13 @@ import pytest
 from sim_node.mujoco_params import check_physics, mujoco_options, MujocoOptions
 from sim_node.mujoco_plant import MujocoPlant
 
-R_TOOL = 0.01
-
-
-def _arm(name):
-    """(model, urdf, q0, n_W into the surface) of the paper's arm or the Panda on a table."""
-    if name == 'paper':
-        return (RobotModel.from_urdf(), default_urdf_path(), np.array([0.657, 0.913]),
-                np.array([0.0, -1.0, 0.0]))
-    return panda_model(), panda_urdf_path(), np.array(PANDA_Q0), np.array([0.0, 0.0, -1.0])
-
 
 def _plant(name, k=1700.0, **opts):
-    model, urdf, q0, n_W = _arm(name)
+    model, urdf, q0, n_W = mujoco_arm(name)
     p0 = model.kinematics(q0, np.zeros(model.n)).p_W
     surface = ElasticSurface.create(k, p0 + R_TOOL * n_W, n_W)  # touching the sphere
     plant = MujocoPlant(model, urdf, MujocoOptions(tool_radius=R_TOOL, **opts), surface, q0)
     return model, plant, n_W
-
-
-def _press(model, plant, f_W, steps=3000):
-    """Hold the tool pressing with f_W (gravity compensated, damped) until it settles."""
-    meas = plant.measure()
-    axes = list(model.task_axes)
-    for _ in range(steps):
-        kin = model.kinematics(meas.q, meas.qdot)
-        J = np.zeros((3, model.n))
-        J[axes] = kin.J_ee
-        g = pin.rnea(model.model, model.data, meas.q, np.zeros(model.n), np.zeros(model.n))
-        tau = g + J.T @ (f_W - 30.0 * (J @ meas.qdot)) - 2.0 * meas.qdot
-        meas = plant.step(tau, 1e-3)
-    return meas
 
 
 @pytest.mark.parametrize('name', ['paper', 'panda'])
@@ -87,7 +63,7 @@ def test_mass_matrix_and_bias_forces_match_pinocchio(name):
 def test_static_press_gives_the_stiffness_parameter(name, k):
     model, plant, n_W = _plant(name, k, surface_damping=20.0)
     for f_n in (2.0, 5.0, 20.0):
-        meas = _press(model, plant, f_n * n_W)
+        meas = mujoco_press(model, plant, f_n * n_W)
         depth = float(n_W @ (meas.p_W - plant.surface.x0_W)) + R_TOOL
         f_true_n = float(n_W @ meas.f_true_W)
         print(f'{name}: {f_n:g} N: k = {f_true_n / depth:.2f} N/m (parameter {k:g})')
@@ -105,7 +81,7 @@ def test_sensor_reads_the_tool_weight_and_the_contact_force():
     np.testing.assert_allclose(F_S, 0.25 * meas.R_W_ee.T @ g_W, atol=1e-9)
     assert np.all(meas.f_true_W == 0.0)
     plant.surface = surface
-    meas = _press(model, plant, 5.0 * n_W)  # at rest, pressing 5 N (the weight included)
+    meas = mujoco_press(model, plant, 5.0 * n_W)  # at rest, pressing 5 N (the weight included)
     F_S = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
     # the reading is the environment's force on the tool plus the weight, tool frame
     np.testing.assert_allclose(F_S, meas.R_W_ee.T @ (-meas.f_true_W + 0.25 * g_W), atol=1e-6)
@@ -116,12 +92,12 @@ def test_friction_holds_below_mu_fn_and_slides_at_it():
     # the planar arm: its tool cannot roll (a 7-DOF arm with a free orientation can)
     model, plant, n_W = _plant('paper', 1700.0, surface_friction=0.3)
     t_W = np.array([1.0, 0.0, 0.0])
-    _press(model, plant, 5.0 * n_W)  # mu f_n = 1.5 N
+    mujoco_press(model, plant, 5.0 * n_W)  # mu f_n = 1.5 N
 
     def push(f_t):
-        _press(model, plant, 5.0 * n_W + f_t * t_W, steps=500)
+        mujoco_press(model, plant, 5.0 * n_W + f_t * t_W, steps=500)
         x0 = plant.measure().p_W
-        meas = _press(model, plant, 5.0 * n_W + f_t * t_W, steps=500)
+        meas = mujoco_press(model, plant, 5.0 * n_W + f_t * t_W, steps=500)
         return float(t_W @ (meas.p_W - x0)) / 0.5, meas  # m/s over the last 0.5 s
     v_held, _ = push(1.0)
     v_slid, meas = push(2.0)
@@ -169,7 +145,7 @@ def test_run_time_surface_changes_move_the_table_and_bound_its_stiffness():
     model, plant, n_W = _plant('paper', 1700.0)
     surface = plant.surface
     plant.surface = ElasticSurface.create(4.0 * 1700.0, surface.x0_W + 0.01 * n_W, n_W)
-    meas = _press(model, plant, 5.0 * n_W)  # 1 cm further: 1 cm more to travel
+    meas = mujoco_press(model, plant, 5.0 * n_W)  # 1 cm further: 1 cm more to travel
     depth = float(n_W @ (meas.p_W - plant.surface.x0_W)) + R_TOOL
     assert float(n_W @ meas.f_true_W) / depth == pytest.approx(4.0 * 1700.0, rel=0.02)
     with pytest.raises(SurfaceError, match='too high for the plate'):
@@ -183,7 +159,8 @@ def test_a_step_that_reuses_measures_forward_pass_is_bitwise_the_full_mj_step(na
     for reuse in (False, True):
         model, plant, n_W = _plant(name)
         plant.reuse_forward = reuse
-        meas = _press(model, plant, 5.0 * n_W, steps=300)  # in contact: the constraint solver
+        # in contact: the constraint solver
+        meas = mujoco_press(model, plant, 5.0 * n_W, steps=300)
         runs.append((meas.q, meas.qdot, meas.f_W, meas.f_true_W))
     for full, reused in zip(*runs):
         np.testing.assert_array_equal(full, reused)
@@ -206,7 +183,7 @@ def test_true_force_is_the_sum_of_mujocos_contact_forces(name):
     """f_true_W, read from the table top's cfrc_ext, is the contact force, friction included."""
     model, plant, n_W = _plant(name, 3000.0, surface_friction=0.3, tool_mass=0.25)
     t_W = np.cross(n_W, [0.0, 0.0, 1.0] if abs(n_W[2]) < 0.9 else [1.0, 0.0, 0.0])
-    meas = _press(model, plant, 5.0 * n_W + 3.0 * t_W, steps=300)  # sliding: friction rows
+    meas = mujoco_press(model, plant, 5.0 * n_W + 3.0 * t_W, steps=300)  # sliding: friction rows
     np.testing.assert_allclose(meas.f_true_W, _contact_forces_on_surface_W(plant), atol=1e-12)
     assert abs(t_W @ meas.f_true_W) > 0.5 and n_W @ meas.f_true_W > 2.0, meas.f_true_W
     meas = plant.hold(1e-3)  # the brakes: inverse dynamics, the same contact read

@@ -14,6 +14,7 @@ The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
 from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
 from hybrid_force_controller.ros.programs.tracking import TrackingMeter
@@ -22,7 +23,6 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
 from sensor_msgs.msg import JointState
 
 CTRL = 'hybrid_force_controller.ros.controller.controller_node'

@@ -11,11 +11,11 @@ from __future__ import annotations
 import threading
 
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import domain_id, NodeProcess, Spun, wait_for
 import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, Spun, wait_for
 
 
 CTRL = 'hybrid_force_controller.ros.controller.controller_node'

@@ -9,13 +9,13 @@ parameter service. Lockstep makes the result independent of the machine's load.
 import threading
 
 from geometry_msgs.msg import PointStamped, WrenchStamped
+from helpers.ros import domain_id, NodeProcess, Spun, stamp_s, wait_for, wait_future
 import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, Spun, stamp_s, wait_for, wait_future
 from rosgraph_msgs.msg import Clock
 
 

@@ -8,13 +8,13 @@ import math
 from pathlib import Path
 import threading
 
+from helpers.ros import domain_id, Spun, wait_for
 from hybrid_force_controller.ros.controller.controller_node import ControllerNode
 import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
-from ros_helpers import domain_id, Spun, wait_for
 from sim_node.sim_node import SimNode
 
 
@@ -32,7 +32,7 @@ def _wait(future):
 
 
 def _running(make_nodes, args=None) -> Spun:
-    """Nodes made by ``make_nodes(context)``, spun by a background executor (ros_helpers.Spun)."""
+    """Nodes made by ``make_nodes(context)``, spun by a background executor (helpers.ros.Spun)."""
     spun = Spun(DOMAIN_ID, args)
     for node in make_nodes(spun.context):
         spun.add(node)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+from helpers.figures import current_test, report_figure
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
                                                        square_path_event)
@@ -49,7 +50,7 @@ K_TRUE = 3000.0
 
 
 @pytest.fixture(scope='module')
-def model():
+def panda():
     return panda_model()
 
 
@@ -87,8 +88,8 @@ def rms(x: np.ndarray) -> float:
 
 
 @pytest.fixture(scope='module')
-def runs(model) -> dict:
-    return {s: panda_run(model, s) for s in SURFACES}
+def runs(panda) -> dict:
+    return {s: panda_run(panda, s) for s in SURFACES}
 
 
 @pytest.mark.parametrize('surface', list(SURFACES))
@@ -101,6 +102,7 @@ def test_the_panda_learns_the_surface_and_meets_the_issues_targets(runs, surface
                'force RMS': rms(true_force_error(result, 5.0)[path]),
                'path RMS': rms(path_error(result)[path]),
                'time out of contact': float((~result.in_contact[result.t >= 0.1]).sum()) * 1e-3}
+    report_figure(current_test(), **figures)
     assert figures['normal error deg'] <= max_error_deg, figures
     assert figures['force RMS'] <= force_rms, figures
     assert figures['path RMS'] <= PATH_RMS_M, figures
@@ -119,8 +121,8 @@ def test_the_stiffness_estimate_stays_consistent_while_the_normal_moves(runs, su
     assert 0.85 * K_TRUE <= k.min() and k.max() <= 1.15 * K_TRUE, (k.min(), k.max())
 
 
-def test_negative_control_without_the_estimate_the_tilt_costs_force_and_stiffness(model, runs):
-    result, t_slide = panda_run(model, 'tilted about x', estimate=False)
+def test_negative_control_without_the_estimate_the_tilt_costs_force_and_stiffness(panda, runs):
+    result, t_slide = panda_run(panda, 'tilted about x', estimate=False)
     learnt, _ = runs['tilted about x']
     path = result.t >= t_slide
     assert normal_error_deg(result)[path].min() > 17.0  # it keeps the told normal
@@ -148,6 +150,8 @@ def test_the_papers_arm_on_a_line_it_is_not_told_about():
     result = paper_run(-TILT, True)
     window = result.t >= 5.0
     error = true_force_error(result, 1.0)
+    report_figure(current_test(), force_rms_n=rms(error[window]),
+                  normal_error_deg=float(normal_error_deg(result)[window].max()))
     assert rms(error[window]) <= 0.05, rms(error[window])
     assert result.in_contact[result.t >= 0.1].all()
     assert normal_error_deg(result)[window].max() <= 3.0
@@ -172,20 +176,20 @@ def test_the_papers_line_from_a_wrong_theta_hat_waits_for_the_first_touch():
     assert rms(true_force_error(result, 1.0)[window]) <= 0.05
 
 
-def test_with_estimation_off_the_runtime_keeps_the_told_normal(model):
-    params = build_params(model, {'n': N_TOLD})
-    rt = ControllerRuntime(model, params)
+def test_with_estimation_off_the_runtime_keeps_the_told_normal(panda):
+    params = build_params(panda, {'n': N_TOLD})
+    rt = ControllerRuntime(panda, params)
     assert rt.ctrl._moving is None and rt.normal_status().enabled is False
-    p0 = model.kinematics(np.array(panda_scenario(model).q0), np.zeros(model.n)).p_W
-    plant = ArmSimulator(model, make_surface('plane', 3000.0, p0, N_TOLD),
-                         np.array(panda_scenario(model).q0), substeps=2)
+    p0 = panda.kinematics(np.array(panda_scenario(panda).q0), np.zeros(panda.n)).p_W
+    plant = ArmSimulator(panda, make_surface('plane', 3000.0, p0, N_TOLD),
+                         np.array(panda_scenario(panda).q0), substeps=2)
     run_loop(rt, plant, 0.2)
     out = rt.tick(rt.state_stamp)
     assert out.n_W is params.law.n
 
 
-def test_switching_the_estimate_on_and_off_and_a_new_n(model):
-    rt = ControllerRuntime(model, build_params(model, {'n': N_TOLD, 'n_estimation': True}))
+def test_switching_the_estimate_on_and_off_and_a_new_n(panda):
+    rt = ControllerRuntime(panda, build_params(panda, {'n': N_TOLD, 'n_estimation': True}))
     assert rt.ctrl._moving is not None
     np.testing.assert_array_equal(rt.normal_status().n_hat, N_TOLD)
     rt.set_params(rt.validate({'n': N_TOLD, 'n_estimation': False}))
@@ -195,9 +199,9 @@ def test_switching_the_estimate_on_and_off_and_a_new_n(model):
     np.testing.assert_allclose(rt.normal_status().n_hat, n_new)
 
 
-def test_a_normal_far_from_the_told_one_is_held_on_the_60_degree_cone(model):
+def test_a_normal_far_from_the_told_one_is_held_on_the_60_degree_cone(panda):
     """A force 80 deg from n: the estimate follows it, the normal in use stops at 60 deg."""
-    rt = ControllerRuntime(model, build_params(model, {'n': N_TOLD, 'n_estimation': True,
+    rt = ControllerRuntime(panda, build_params(panda, {'n': N_TOLD, 'n_estimation': True,
                                                        'n_rate_limit': 4.0}))
     nrm = rt._normal
     far = np.array([math.sin(1.4), 0.0, -math.cos(1.4)])

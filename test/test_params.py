@@ -18,11 +18,6 @@ import pytest
 DOUBLES = [s.name for s in CONTROLLER_SCHEMA if s.kind == 'double']
 
 
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
-
-
 def build(model: RobotModel, values: dict) -> ControllerParams:
     return build_params(model, values)
 

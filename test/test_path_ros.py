@@ -20,6 +20,8 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, PoseStamped
+from helpers.ros import (CONTROLLER_MODULE, domain_id, MASSES_OFF, NodeProcess,
+                         parse_diagnostics, SIM_MODULE, Spun, stamp_s, wait_for, wait_future)
 from nav_msgs.msg import Path
 import numpy as np
 import pytest
@@ -27,8 +29,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, QoSProfile
-from ros_helpers import (CONTROLLER_MODULE, domain_id, MASSES_OFF, NodeProcess,
-                         parse_diagnostics, SIM_MODULE, Spun, stamp_s, wait_for, wait_future)
 from std_msgs.msg import Float64MultiArray, String
 from visualization_msgs.msg import MarkerArray
 

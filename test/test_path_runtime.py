@@ -1,7 +1,7 @@
 """
 A user's path in the runtime and in closed loop, offline (ControllerRuntime.on_path).
 
-The paper's arm through the loop engine (test_runtime.Loop: the plant starts touching the
+The paper's arm through the loop engine (helpers.offline.Loop: the plant starts touching the
 surface with no force, so the runtime first approaches it), and the Panda following a small
 square on its tilted plane with its masses 30 % off (arm7.py). Contact first, the blend from
 the current reference, the end hold, an empty path, the release by a ``ref_*`` change and the
@@ -9,22 +9,15 @@ pause in safe mode.
 """
 from __future__ import annotations
 
+from helpers.offline import Loop
 from hybrid_force_controller.core.law.path import follow_basis, PathLimits, plan_path
-from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
                                                        square_path_event)
 from hybrid_force_controller.core.offline.scenario import run_scenario
 import numpy as np
-import pytest
-from test_runtime import Loop
 
 DT = 1e-3
 JUMP_BOUND_NM = 10.0  # as test_runtime_changes.py
-
-
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
 
 
 def limits_of(params) -> PathLimits:

@@ -13,10 +13,10 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import domain_id, NodeProcess, parse_diagnostics, Spun, wait_for
 import pytest
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
-from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 

@@ -21,11 +21,11 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, WrenchStamped
+from helpers.ros import domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for
 import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 

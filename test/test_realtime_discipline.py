@@ -27,13 +27,13 @@ import os
 from pathlib import Path
 import time
 
+from helpers.ros import domain_id, RealTimeRig, wait_for, wait_future
 from hybrid_force_controller.core.runtime.contact import in_contact
 from hybrid_force_controller.ros.common.scheduling import one_cpu_reason
 from hybrid_force_controller.ros.programs.run_faults import storm_values
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
 
 
 STORM_HZ, STORM_S = 20.0, 5.0

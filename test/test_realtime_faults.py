@@ -19,6 +19,8 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import (domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for,
+                         wait_future)
 from hybrid_force_controller.core.model.robot_model import RobotModel
 import numpy as np
 import pytest
@@ -26,8 +28,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import (domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for,
-                         wait_future)
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 

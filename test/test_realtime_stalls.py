@@ -16,13 +16,13 @@ from __future__ import annotations
 import signal
 import time
 
+from helpers.ros import domain_id, RealTimeRig, wait_for, wait_future
 from hybrid_force_controller.tools.bag_io import load_run
 from hybrid_force_controller.tools.recovery_figures import recovery_figures, theta_steady
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from ros_helpers import domain_id, RealTimeRig, wait_for, wait_future
 
 
 FREEZES_MS = (150.0, 300.0, 500.0)
@@ -32,7 +32,7 @@ WINDOW_S = 6.0
 F_D = 1.0
 P0 = np.array([1.0, 1.6, 0.0])  # the tool at q0 (config/params.yaml), on the surface
 N_W = np.array([0.0, -1.0, 0.0])
-THETA_TRUE = np.array([0.65, 1.35])  # the sim's link masses (ros_helpers.MASSES_OFF)
+THETA_TRUE = np.array([0.65, 1.35])  # the sim's link masses (helpers.ros.MASSES_OFF)
 
 
 def _freeze(rig: RealTimeRig, ms: float) -> tuple[float, float]:

@@ -5,6 +5,7 @@ import time  # noqa: E402
 from typing import Callable  # noqa: E402
 
 from geometry_msgs.msg import PointStamped, WrenchStamped  # noqa: E402
+from helpers.ros import domain_id  # noqa: E402
 from hybrid_force_controller.ros.programs.recorder_node import BagRecorder, message_class
 from hybrid_force_controller.tools.bag_io import (RECORD_TOPICS, TOPIC_CONTACT_WRENCH,
                                                   TOPIC_WRENCH, TOPIC_X, TYPESTORE)
@@ -12,7 +13,6 @@ import pytest  # noqa: E402
 import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from ros_helpers import domain_id  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 
 

@@ -8,6 +8,7 @@ input hook). No ROS: the same cases over DDS are in test_realtime_faults.py.
 """
 from __future__ import annotations
 
+from helpers.offline import move_surface
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.engine import Event, LoopEngine
@@ -23,15 +24,6 @@ import pytest
 
 F_D, APPROACH_SPEED = 1.0, 0.025
 T0, T1 = 6.0, 7.0  # fault phase
-
-
-def move_surface(depth: float):
-    """Event action: the surface moves ``depth`` metres along n (away from the tool)."""
-    def act(_runtime, plant):
-        s = plant.surface
-        plant.surface = ElasticSurface.create(s.k, s.x0_W + depth * s.n_W, s.n_W)
-        plant._tau_c = None  # the cached contact torque belongs to the old surface
-    return act
 
 
 def run(duration: float, scale: float = 0.5, k: float = 1700.0, seed: int = 0, **kw):

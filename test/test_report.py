@@ -8,11 +8,11 @@ from pathlib import Path
 import subprocess
 import sys
 
-from hybrid_force_controller.tools import report
+from helpers.bags import (FORCE_AMPLITUDE_N, N_SAMPLES, N_SURF, point_msg, run_report,
+                          synthetic_messages, wrench_msg, write_bag)
 from hybrid_force_controller.tools.analysis import compute_metrics
 from hybrid_force_controller.tools.bag_io import (BAG_VERSION, BagError, BagWriter, load_run,
-                                                  RECORD_TOPICS, REQUIRED_TOPICS,
-                                                  TOPIC_CONTACT_WRENCH, TOPIC_THETA_HAT,
+                                                  RECORD_TOPICS, REQUIRED_TOPICS, TOPIC_THETA_HAT,
                                                   TOPIC_WRENCH, TOPIC_WRENCH_DESIRED, TOPIC_X,
                                                   TOPIC_X_DESIRED, TYPESTORE)
 import numpy as np
@@ -22,97 +22,11 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-T = TYPESTORE.types
-T0_NS = 1_700_000_000_000_000_000  # header stamps (e.g. the controller clock)
-LOG_OFFSET_NS = 123_456_789  # recorder receive time = stamp + offset
-DT_NS = 10_000_000
-N_SAMPLES = 1001  # 10 s at 100 Hz
-FORCE_AMPLITUDE_N = 0.2
-N_SURF = (0.0, -1.0, 0.0)
-
-
-def _header(ns: int):
-    stamp = T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)
-    return T['std_msgs/msg/Header'](stamp=stamp, frame_id='base_link')
-
-
-def point_msg(ns: int, p) -> object:
-    point = T['geometry_msgs/msg/Point'](x=float(p[0]), y=float(p[1]), z=float(p[2]))
-    return T['geometry_msgs/msg/PointStamped'](header=_header(ns), point=point)
-
-
-def wrench_msg(ns: int, f) -> object:
-    vec = T['geometry_msgs/msg/Vector3']
-    wrench = T['geometry_msgs/msg/Wrench'](force=vec(x=float(f[0]), y=float(f[1]),
-                                                     z=float(f[2])),
-                                           torque=vec(x=0.0, y=0.0, z=0.0))
-    return T['geometry_msgs/msg/WrenchStamped'](header=_header(ns), wrench=wrench)
-
-
-def array_msg(values, label: str) -> object:
-    dim = T['std_msgs/msg/MultiArrayDimension'](label=label, size=len(values),
-                                                stride=len(values))
-    layout = T['std_msgs/msg/MultiArrayLayout'](dim=[dim], data_offset=0)
-    return T['std_msgs/msg/Float64MultiArray'](layout=layout,
-                                               data=np.asarray(values, dtype=float))
-
-
-def synthetic_messages(skip=(), true_force=False, header_t0_ns=T0_NS, theta_label='m1,m2'):
-    """
-    (topic, log_ns, msg) of a run with known errors.
-
-    Tangential error 1 mm (plus a 2 mm error along n, which must not count); normal force
-    error ``0.2 sin(2 pi t)`` N; contact lost for t in [2.0, 2.5); theta_hat -> (1.3, 0.5).
-    With ``true_force`` the measured wrench carries a large bias and the true one is on
-    ``/sim/contact_wrench``. The wrench is published at 200 Hz, the rest at 100 Hz.
-    Header stamps start at ``header_t0_ns``; log (receive) times at ``T0_NS``.
-    """
-    n = np.array(N_SURF)
-    for k in range(2 * N_SAMPLES - 1):
-        ns = header_t0_ns + k * DT_NS // 2
-        log_ns = T0_NS + k * DT_NS // 2 + LOG_OFFSET_NS
-        t = k * DT_NS / 2 * 1e-9
-        lost = 2.0 <= t < 2.5
-        f_W = np.zeros(3) if lost else (1.0 + FORCE_AMPLITUDE_N * np.sin(2 * np.pi * t)) * n
-        measured_W = f_W + 5.0 * n if true_force else f_W
-        out = [(TOPIC_WRENCH, ns, wrench_msg(ns, measured_W))]
-        if true_force:
-            out.append((TOPIC_CONTACT_WRENCH, ns, wrench_msg(ns, f_W)))
-        if k % 2 == 0:
-            x_d = np.array([1.0 + 0.1 * np.sin(t), 0.0, 0.0])
-            theta = [1.3, 0.5 + 0.4 * math.exp(-t)]
-            out += [(TOPIC_X, ns, point_msg(ns, x_d + [1e-3, 2e-3, 0.0])),
-                    (TOPIC_X_DESIRED, ns, point_msg(ns, x_d)),
-                    (TOPIC_WRENCH_DESIRED, ns, wrench_msg(ns, n)),
-                    (TOPIC_THETA_HAT, ns, array_msg(theta, theta_label))]
-        for topic, _, msg in out:
-            if topic not in skip:
-                yield topic, log_ns, msg
-
-
-def write_bag(path: Path, drop=(), silence=(), true_force=False, messages=None) -> Path:
-    """
-    Bag of :func:`synthetic_messages`; ``drop``.
-
-    Topics not even declared, ``silence``: topics declared without messages.
-    """
-    topics = [(t, typ) for t, typ in RECORD_TOPICS if t not in drop]
-    with BagWriter(path, topics) as writer:
-        for topic, log_ns, msg in (messages if messages is not None
-                                   else synthetic_messages((*drop, *silence), true_force)):
-            writer.write_msg(topic, log_ns, msg)
-    return path
 
 
 @pytest.fixture(scope='module')
 def good_bag(tmp_path_factory) -> Path:
     return write_bag(tmp_path_factory.mktemp('bags') / 'run')
-
-
-def run_report(bag: Path, out: Path, capsys, *extra: str) -> tuple[int, str, str]:
-    rc = report.main([str(bag), '--out', str(out), *extra])
-    captured = capsys.readouterr()
-    return rc, captured.out, captured.err
 
 
 def test_report_metrics_and_figures(good_bag, tmp_path, capsys):

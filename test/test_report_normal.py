@@ -1,7 +1,7 @@
 """
 ``report`` on a bag with the learnt surface normal: normal_error_deg, its window, fig8_normal.png.
 
-Synthetic MCAP bags written with BagWriter (test_report.py's helpers), 10 s at 100 Hz: a plane
+Synthetic MCAP bags written with BagWriter (helpers.bags), 10 s at 100 Hz: a plane
 tilted 0.3 rad about x (``/sim/contact_normal``), the controller told n = [0, 0, -1]. The tool
 rests until 2 s (but for a 0.1 s jolt at 0.5 s, up to 3 cm/s: not sliding), then slides along x
 at 5 cm/s; its normal (``~/surface_normal``) turns from
@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 
+from helpers.bags import array_msg, header, point_msg, run_report, samples, wrench_msg, write_bag
 from hybrid_force_controller.tools.bag_io import (load_run, TOPIC_CONTACT_NORMAL,
                                                   TOPIC_CONTACT_WRENCH, TOPIC_SURFACE_NORMAL,
                                                   TOPIC_THETA_HAT, TOPIC_WRENCH,
@@ -22,8 +23,6 @@ from hybrid_force_controller.tools.bag_io import (load_run, TOPIC_CONTACT_NORMAL
 from hybrid_force_controller.tools.normal_analysis import normal_metrics
 import numpy as np
 import pytest
-from test_report import (_header, array_msg, DT_NS, LOG_OFFSET_NS, point_msg, run_report,
-                         T0_NS, wrench_msg, write_bag)
 
 TILT = 0.3
 N_TRUE = np.array([0.0, math.sin(TILT), -math.cos(TILT)])
@@ -35,7 +34,7 @@ FINAL_ERROR_DEG = 1.0
 def vector_msg(ns: int, v) -> object:
     vec = TYPESTORE.types['geometry_msgs/msg/Vector3'](
         x=float(v[0]), y=float(v[1]), z=float(v[2]))
-    return TYPESTORE.types['geometry_msgs/msg/Vector3Stamped'](header=_header(ns), vector=vec)
+    return TYPESTORE.types['geometry_msgs/msg/Vector3Stamped'](header=header(ns), vector=vec)
 
 
 def n_hat_at(t: float) -> np.ndarray:
@@ -51,10 +50,7 @@ def normal_messages():
     """(topic, log_ns, msg) of the run of the module docstring."""
     start = np.array([0.5, 0.0, 0.4])
     along = np.array([1.0, 0.0, 0.0])
-    for k in range(1001):
-        ns = T0_NS + k * DT_NS
-        log_ns = ns + LOG_OFFSET_NS
-        t = k * DT_NS * 1e-9
+    for ns, log_ns, t in samples():
         x = start + 0.05 * max(t - T_SLIDE, 0.0) * along
         if 0.5 <= t < 0.6:  # a jolt at start-up
             x = x + 1e-3 * math.sin(math.pi * (t - 0.5) / 0.1) * along

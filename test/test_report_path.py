@@ -1,7 +1,7 @@
 """
 ``report`` on a bag with a user's path: the path metrics, their window and fig7_path.png.
 
-Synthetic MCAP bags written with BagWriter (test_report.py's helpers): a 5 cm square traced in
+Synthetic MCAP bags written with BagWriter (helpers.bags): a 5 cm square traced in
 the surface plane (n = -y) while ``~/path_status`` says ``running``, with a known tangential
 error then (0.5 mm) and another before and after (5 mm), plus 3 mm along n that must never
 count.
@@ -10,49 +10,11 @@ from __future__ import annotations
 
 import json
 
-from hybrid_force_controller.tools.bag_io import (load_run, TOPIC_PATH_STATUS, TOPIC_THETA_HAT,
-                                                  TOPIC_WRENCH, TOPIC_WRENCH_DESIRED, TOPIC_X,
-                                                  TOPIC_X_DESIRED, TYPESTORE)
+from helpers.bags import path_messages, run_report, RUNNING_S, write_bag
+from hybrid_force_controller.tools.bag_io import load_run
 from hybrid_force_controller.tools.path_analysis import path_metrics, surface_basis
 import numpy as np
 import pytest
-from test_report import (array_msg, DT_NS, LOG_OFFSET_NS, N_SURF, point_msg, run_report, T0_NS,
-                         wrench_msg, write_bag)
-
-SIDE_M = 0.05
-RUNNING_S = (2.0, 8.0)  # the path runs between these log times
-STATUS = ((1.0, 'waiting for contact'), (RUNNING_S[0], 'running'), (RUNNING_S[1], 'done'))
-ERR_RUNNING = np.array([5e-4, 3e-3, 0.0])  # 0.5 mm along x (tangential) + 3 mm along n
-ERR_OTHER = np.array([0.0, 3e-3, 5e-3])  # 5 mm along z (tangential) + 3 mm along n
-
-
-def square_point(t: float) -> np.ndarray:
-    """Return the desired point at t: the square's corner before, along it, at the end after."""
-    s = np.clip((t - RUNNING_S[0]) / (RUNNING_S[1] - RUNNING_S[0]), 0.0, 1.0) * 4 * SIDE_M
-    corners = np.array([[1.0, 1.6, 0.0], [1.0 + SIDE_M, 1.6, 0.0],
-                        [1.0 + SIDE_M, 1.6, SIDE_M], [1.0, 1.6, SIDE_M], [1.0, 1.6, 0.0]])
-    k = min(int(s // SIDE_M), 3)
-    return corners[k] + (s - k * SIDE_M) / SIDE_M * (corners[k + 1] - corners[k])
-
-
-def path_messages(with_status: bool = True):
-    """(topic, log_ns, msg) of 10 s at 100 Hz with the path running over RUNNING_S."""
-    n = np.array(N_SURF)
-    status = list(STATUS) if with_status else []
-    for k in range(1001):
-        ns = T0_NS + k * DT_NS
-        log_ns = ns + LOG_OFFSET_NS
-        t = k * DT_NS * 1e-9
-        while status and status[0][0] <= t + 1e-9:
-            yield TOPIC_PATH_STATUS, log_ns, TYPESTORE.types['std_msgs/msg/String'](
-                data=status.pop(0)[1])
-        x_d = square_point(t)
-        err = ERR_RUNNING if RUNNING_S[0] <= t < RUNNING_S[1] else ERR_OTHER
-        yield TOPIC_X, log_ns, point_msg(ns, x_d + err)
-        yield TOPIC_X_DESIRED, log_ns, point_msg(ns, x_d)
-        yield TOPIC_WRENCH, log_ns, wrench_msg(ns, n)
-        yield TOPIC_WRENCH_DESIRED, log_ns, wrench_msg(ns, n)
-        yield TOPIC_THETA_HAT, log_ns, array_msg([1.3, 0.9], 'm1,m2')
 
 
 @pytest.fixture(scope='module')

@@ -7,13 +7,13 @@ reason when nothing was given.
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray
+from helpers.ros import domain_id, NodeProcess, parse_diagnostics, ROOT, Spun, wait_for
 from hybrid_force_controller.core.config.params import ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import default_urdf_path
 from hybrid_force_controller.ros.common.qos import DESCRIPTION_QOS
 from hybrid_force_controller.ros.controller.controller_node import ControllerNode
 import pytest
 from rclpy.parameter import Parameter
-from ros_helpers import domain_id, NodeProcess, parse_diagnostics, ROOT, Spun, wait_for
 from std_msgs.msg import String
 
 

@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import math
 
+from helpers.offline import DT, Loop
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.law.reference import SineReference
-from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.engine import LoopEngine
-from hybrid_force_controller.core.offline.environment import ElasticSurface, sensor_wrench_from_f_W
+from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0
 from hybrid_force_controller.core.offline.simulator import ArmSimulator
 from hybrid_force_controller.core.runtime.controller_runtime import (ControllerRuntime,
@@ -27,61 +26,7 @@ import numpy as np
 import pytest
 
 
-DT = 1e-3
 Q0 = np.array(PAPER_Q0)
-
-
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
-
-
-class Loop:
-    """
-    Runtime + plant at 1 kHz through the loop engine.
-
-    ``step(feed)`` runs one period (the plant's state reaches the runtime only when ``feed``) and
-    returns the runtime's output and the measurement it was computed from.
-    """
-
-    def __init__(self, model: RobotModel, plant_masses=None, input_hook=None,
-                 **overrides) -> None:
-        self.model = model
-        self.params = build_params(model, overrides)
-        self.rt = ControllerRuntime(model, self.params)
-        p0 = model.kinematics(Q0, np.zeros(model.n)).p_W
-        plant = model if plant_masses is None else model.with_theta(plant_masses)
-        self.sim = ArmSimulator(plant, ElasticSurface.create(1700.0, p0, self.params.law.n),
-                                Q0, substeps=2)
-        self.feeding = True
-        hook = input_hook or (lambda t, msg: msg)
-        self.engine = LoopEngine(self.rt, self.sim, 60.0,
-                                 input_hook=lambda t, msg: hook(t, msg) if self.feeding else None)
-
-    @property
-    def t(self) -> float:
-        return self.engine.t
-
-    @property
-    def k(self) -> int:
-        return self.engine.k
-
-    @property
-    def meas(self):
-        return self.engine.meas
-
-    def feed(self, names=None, q=None, qdot=None) -> None:
-        """Feed the current measurement straight into the runtime (names, q, qdot overridable)."""
-        m, t = self.meas, self.t
-        names = list(self.model.joint_names) if names is None else names
-        self.rt.on_joint_state(names, m.q if q is None else q,
-                               m.qdot if qdot is None else qdot, t)
-        self.rt.on_wrench('tool0', sensor_wrench_from_f_W(m.R_W_ee, m.f_W), t)
-
-    def step(self, feed: bool = True):
-        self.feeding = feed
-        meas = self.engine.step()
-        return self.engine.outputs[-1], meas
 
 
 def feed_same(rts, model, q, qdot, F, t, names=None, frame='tool0'):

@@ -6,19 +6,12 @@ no stale state).
 """
 from __future__ import annotations
 
+from helpers.offline import Loop
 from hybrid_force_controller.core.law.reference import BlendedReference, SineReference
-from hybrid_force_controller.core.model.robot_model import RobotModel
 import numpy as np
-import pytest
-from test_runtime import Loop
 
 
 JUMP_BOUND_NM = 10.0  # 10 % of the 100 N m effort limit
-
-
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
 
 
 def run(loop: Loop, steps: int) -> list:

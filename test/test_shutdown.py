@@ -18,9 +18,9 @@ import signal
 import subprocess
 import sys
 
+from helpers.ros import domain_id, node_env, NodeProcess, ROOT, wait_for
 from hybrid_force_controller.ros.programs.load import cpu_seconds
 import pytest
-from ros_helpers import domain_id, node_env, NodeProcess, ROOT, wait_for
 
 
 ENTRY_POINTS = {

@@ -10,13 +10,13 @@ when it resumes: the old command for ``command_timeout`` after it came, zero eff
 import math
 import time
 
+from helpers.ros import domain_id
 import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
-from ros_helpers import domain_id
 from sim_node.sim_node import held_periods, SimNode
 from std_msgs.msg import Float64MultiArray
 

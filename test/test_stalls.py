@@ -10,6 +10,7 @@ freezes over DDS are in test_realtime_stalls.py; the exact figures come from
 """
 from __future__ import annotations
 
+from helpers.offline import move_surface
 from hybrid_force_controller.core.offline.engine import Event
 from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
 from hybrid_force_controller.core.offline.timing import Stall, TimingModel
@@ -20,7 +21,6 @@ from hybrid_force_controller.tools.recovery_figures import (recovery_figures, se
                                                             theta_steady)
 import numpy as np
 import pytest
-from test_recovery import move_surface
 
 
 T_FREEZE = 6.0  # calm in contact by then (trusted theta_hat)

@@ -30,11 +30,6 @@ STIFFNESSES = (300.0, 500.0, 1700.0, 5000.0)
 SCALES = (0.5, 1.5)
 
 
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
-
-
 def t_contact(res: ScenarioResult) -> float:
     """Time of the first sample with the true force in contact."""
     return float(res.t[np.argmax(res.in_contact)])

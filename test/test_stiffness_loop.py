@@ -11,6 +11,7 @@ import dataclasses
 import math
 import tracemalloc
 
+from helpers.offline import DT, synthetic_press as synthetic
 from hybrid_force_controller.core.config.params import (build_params, CONTROLLER_SCHEMA,
                                                         ParameterValidationError, STIFFNESS_FIELDS)
 from hybrid_force_controller.core.law.control_law import ControlError, HybridForceController
@@ -19,22 +20,15 @@ from hybrid_force_controller.core.law.margin import (axis_margin, delay_margin,
 from hybrid_force_controller.core.law.reference import SineReference
 from hybrid_force_controller.core.law.stiffness import StiffnessConfig
 from hybrid_force_controller.core.law.stiffness_loop import StiffnessLoop
-from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0
 from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
 import numpy as np
 import pytest
-from test_stiffness import DT, synthetic
 
 
 Q0 = np.array(PAPER_Q0)
 QDOT = np.array([0.1, -0.2])
 N_W = np.array([0.0, -1.0, 0.0])
-
-
-@pytest.fixture(scope='module')
-def model() -> RobotModel:
-    return RobotModel.from_urdf()
 
 
 def law(model, **values):

@@ -13,11 +13,11 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for
 import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, NodeProcess, parse_diagnostics, Spun, stamp_s, wait_for
 from std_msgs.msg import Float64
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 
+from helpers.bags import DT_NS, LOG_OFFSET_NS, synthetic_messages, T0_NS, write_bag
 from hybrid_force_controller.tools import paper, report
 from hybrid_force_controller.tools.analysis import AnalysisError, compute_metrics, RunLog
 from hybrid_force_controller.tools.bag_io import (load_run, RECORD_TOPICS, REQUIRED_TOPICS,
@@ -17,7 +18,6 @@ from hybrid_force_controller.tools.bag_io import (load_run, RECORD_TOPICS, REQUI
 from hybrid_force_controller.tools.plots import FIGURE_NAMES, STIFFNESS_FIGURE, write_figures
 import numpy as np
 import pytest
-from test_report import DT_NS, LOG_OFFSET_NS, synthetic_messages, T0_NS, write_bag
 
 
 K_HAT_START_S, K_HAT_VALID_S = 1.0, 2.0  # first message; first known (finite) value

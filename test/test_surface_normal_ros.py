@@ -17,12 +17,12 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Vector3Stamped
+from helpers.ros import (CONTROLLER_MODULE, domain_id, NodeProcess, parse_diagnostics,
+                         SIM_MODULE, Spun, wait_for, wait_future)
 import numpy as np
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import (CONTROLLER_MODULE, domain_id, NodeProcess, parse_diagnostics,
-                         SIM_MODULE, Spun, wait_for, wait_future)
 
 TILT = -0.3
 N_TRUE = [math.sin(TILT), -math.cos(TILT), 0.0]

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+from helpers.figures import angle_deg
+from helpers.offline import mujoco_arm, mujoco_press, R_TOOL
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import (CylinderSurface, default_axis,
                                                               ElasticSurface, make_surface,
@@ -29,12 +31,6 @@ from sim_node.sim_surface import surface_from_values
 
 K = 1700.0
 N_DOWN = np.array([0.0, 0.0, -1.0])
-
-
-def _angle_deg(a, b) -> float:
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    c = float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b))
-    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
 # ---------------------------------------------------------------- core shapes
@@ -182,7 +178,7 @@ def test_paper_plant_on_a_cylinder_pushes_along_the_local_normal():
     sim = ArmSimulator(model, s, q0, substeps=2)
     meas = sim.measure()
     n_local = s.normal_at(meas.p_W)
-    assert _angle_deg(n_local, n) == pytest.approx(math.degrees(math.asin(0.05 / 0.3)), abs=0.5)
+    assert angle_deg(n_local, n) == pytest.approx(math.degrees(math.asin(0.05 / 0.3)), abs=0.5)
     np.testing.assert_allclose(meas.f_true_W, K * s.penetration(meas.p_W) * n_local, rtol=1e-12)
     np.testing.assert_array_equal(sim.contact_normal(meas.p_W), n_local)
     sim.surface = None
@@ -194,8 +190,7 @@ def _mujoco(arm, shape, radius, axis=None, k=K):
     """Build a MuJoCo plant whose tool touches ``shape`` at its start (frictionless, damped)."""
     from sim_node.mujoco_params import MujocoOptions
     from sim_node.mujoco_plant import MujocoPlant
-    from test_mujoco_plant import _arm, R_TOOL
-    model, urdf, q0, n_W = _arm(arm)
+    model, urdf, q0, n_W = mujoco_arm(arm)
     p0 = model.kinematics(q0, np.zeros(model.n)).p_W
     surface = make_surface(shape, k, p0 + R_TOOL * n_W, n_W, radius, axis)
     opts = MujocoOptions(tool_radius=R_TOOL, surface_damping=20.0)
@@ -210,15 +205,14 @@ def _offset_depth(surface, p_W, shift_W, r_tool):
 @pytest.mark.parametrize('arm', ['paper', 'panda'])
 @pytest.mark.parametrize('shape, radius', [('plane', 0.5), ('cylinder', 0.3), ('sphere', 0.5)])
 def test_mujoco_press_at_the_surface_point_gives_the_stiffness(arm, shape, radius):
-    from test_mujoco_plant import _press, R_TOOL
     model, plant, n_W = _mujoco(arm, shape, radius)
-    meas = _press(model, plant, 5.0 * n_W)
+    meas = mujoco_press(model, plant, 5.0 * n_W)
     f_n = float(n_W @ meas.f_true_W)
     depth = _offset_depth(plant.surface, meas.p_W, 0.0, R_TOOL)  # the undeflected surface
     print(f'{arm} {shape}: k = {f_n / depth:.1f} N/m')
     assert f_n == pytest.approx(5.0, rel=1e-3)
     assert f_n / depth == pytest.approx(K, rel=0.02)
-    assert _angle_deg(plant.contact_normal(meas.p_W), n_W) < 0.5
+    assert angle_deg(plant.contact_normal(meas.p_W), n_W) < 0.5
 
 
 def _hold_aside(model, plant, n_W, t_W, aside, steps=3000):
@@ -227,7 +221,7 @@ def _hold_aside(model, plant, n_W, t_W, aside, steps=3000):
     meas = plant.measure()
     x_t = float(t_W @ meas.p_W) + aside
     axes, zero = list(model.task_axes), np.zeros(model.n)
-    for _ in range(steps):  # test_mujoco_plant._press with the spring along t_W
+    for _ in range(steps):  # helpers.offline.mujoco_press with the spring along t_W
         kin = model.kinematics(meas.q, meas.qdot)
         J = np.zeros((3, model.n))
         J[axes] = kin.J_ee
@@ -248,18 +242,17 @@ def test_mujoco_held_aside_the_force_is_along_the_contact_normal(arm, shape, axi
     the spring seen at the angle phi from the mount's axis.
     """
     from sim_node.mujoco_scene import CONTACT_STIFFNESS_RATIO, surface_shift
-    from test_mujoco_plant import R_TOOL
     model, plant, n_W = _mujoco(arm, shape, 0.3, axis)
     t_W = np.array([1.0, 0.0, 0.0])  # across the cylinder's axis (z or y)
     meas = _hold_aside(model, plant, n_W, t_W, 0.06)
     n_c = plant.contact_normal(meas.p_W)
     shift = surface_shift(plant.scene, plant.d)
-    phi = math.radians(_angle_deg(n_c, n_W))
+    phi = math.radians(angle_deg(n_c, n_W))
     print(f'{arm} {shape}: phi {math.degrees(phi):.2f} deg, shift {shift}')
     assert math.sin(phi) == pytest.approx(0.06 / (0.3 + R_TOOL), abs=0.01)
-    assert _angle_deg(meas.f_true_W, n_c) < 0.05  # along the normal of the moved surface
+    assert angle_deg(meas.f_true_W, n_c) < 0.05  # along the normal of the moved surface
     np.testing.assert_allclose(n_c, plant.surface.normal_at(meas.p_W - shift), atol=1e-12)
-    assert _angle_deg(n_c, plant.surface.normal_at(meas.p_W)) < 0.5  # the spring moved it
+    assert angle_deg(n_c, plant.surface.normal_at(meas.p_W)) < 0.5  # the spring moved it
     k_c = CONTACT_STIFFNESS_RATIO * K
     k_spring = 1.0 / (1.0 / K - 1.0 / k_c)
     k_local = 1.0 / (1.0 / k_c + math.cos(phi) ** 2 / k_spring)
@@ -274,9 +267,9 @@ def test_mujoco_radius_changes_at_run_time_and_the_shape_is_refused():
     assert plant.m.geom_size[plant.scene.surface_geom, 0] == 0.2
     meas = _hold_aside(model, plant, n_W, np.array([1.0, 0.0, 0.0]), 0.05)
     n_c = plant.contact_normal(meas.p_W)
-    assert _angle_deg(n_c, n_W) > 10.0  # the 0.2 m sphere (0.5 m: 5.7 deg)
-    assert _angle_deg(meas.f_true_W, n_c) < 0.05
-    assert _angle_deg(n_c, plant.surface.normal_at(meas.p_W)) < 1.0  # the 0.2 m sphere's
+    assert angle_deg(n_c, n_W) > 10.0  # the 0.2 m sphere (0.5 m: 5.7 deg)
+    assert angle_deg(meas.f_true_W, n_c) < 0.05
+    assert angle_deg(n_c, plant.surface.normal_at(meas.p_W)) < 1.0  # the 0.2 m sphere's
     for shape in ('plane', 'cylinder'):
         with pytest.raises(SurfaceError, match='shape is fixed at start-up'):
             plant.surface = make_surface(shape, K, s.x0_W, n_W, 0.3)

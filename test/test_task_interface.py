@@ -12,12 +12,12 @@ are refused with the reason, f_d unchanged and the arm pressing on.
 from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import domain_id, MASSES_OFF, RealTimeRig, wait_for, wait_future
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile
-from ros_helpers import domain_id, MASSES_OFF, RealTimeRig, wait_for, wait_future
 from std_srvs.srv import Trigger
 
 NAME = 'hybrid_force_controller'

@@ -24,12 +24,12 @@ import math
 import re
 import time
 
+from helpers.ros import domain_id, MASSES_OFF, RealTimeRig, wait_for
 from hybrid_force_controller.core.runtime.contact import in_contact
 from hybrid_force_controller.ros.programs.injector import Injector
 from hybrid_force_controller.ros.programs.tracking import TrackingMeter
 import numpy as np
 import pytest
-from ros_helpers import domain_id, MASSES_OFF, RealTimeRig, wait_for
 
 
 CTRL = 'hybrid_force_controller'

@@ -11,29 +11,27 @@ process must not look like stale inputs). The proxy also watches every effort th
 controller publishes (finite, within the effort limits and the per-tick rate limit in
 force) and ``/diagnostics``. Sim time and the true contact force are read off the raw
 messages (no sensor noise in this rig and a frictionless surface, so the force is along n
-and its size is the norm of the raw sensor force). The executor spins in a background
-thread; tests wait on conditions, with a wall timeout that only guards against a hang (no
-assertion is about wall time).
+and its size is the norm of the raw sensor force). The proxy spins in a background
+thread (:class:`~helpers.ros.Spun`); tests wait on conditions (:func:`~helpers.ros.wait_for`),
+with a wall timeout that only guards against a hang (no assertion is about wall time). The
+cases' own helpers are in :mod:`helpers.fault_cases`.
 """
 from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-import signal
 import threading
 from typing import Any, Callable, Iterator
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from helpers.ros import (CONTROLLER_MODULE, NodeProcess, parse_diagnostics, SIM_MODULE, Spun,
+                         stamp_s, wait_for, wait_future)
 import numpy as np
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
-from ros_helpers import NodeProcess, parse_diagnostics, stamp_s
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -53,7 +51,7 @@ def set_stamp(msg, t: float):
 class Proxy(Node):
     """Forwards the sim's outputs to the controller through fault hooks; watches the loop."""
 
-    def __init__(self, context: Context, n_W: np.ndarray, limits: np.ndarray) -> None:
+    def __init__(self, context: Any, n_W: np.ndarray, limits: np.ndarray) -> None:
         super().__init__('fault_injector', context=context)
         self.cv = threading.Condition()
         self.n_W = n_W
@@ -173,24 +171,20 @@ class Rig:
         remap = ['-r', f'/joint_states:={RAW}/joint_states',
                  '-r', f'/force_torque_sensor_broadcaster/wrench:={RAW}/wrench',
                  '-r', f'/clock:={RAW}/clock']
-        self.sim = NodeProcess('sim_node.sim_node', logs / 'sim.log', domain_id,
+        self.sim = NodeProcess(SIM_MODULE, logs / 'sim.log', domain_id,
                                ['-p', 'lockstep:=true', *sim_args, *remap])
-        self.controller = NodeProcess('hybrid_force_controller.ros.controller.controller_node',
+        self.controller = NodeProcess(CONTROLLER_MODULE,
                                       logs / 'controller.log', domain_id,
                                       ['-p', 'use_sim_time:=true', *controller_args,
                                        # every injected message is counted: reliable inputs
                                        # that keep a burst (the defaults keep only the newest)
                                        '-p', 'sensor_qos:=reliable', '-p', 'sensor_depth:=10'])
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.proxy = Proxy(self.context, n_W, limits)
+        self.spun = Spun(domain_id)
+        self.proxy = self.spun.add(Proxy(self.spun.context, n_W, limits))
         self.params = AsyncParameterClient(self.proxy, 'hybrid_force_controller')
         self.sim_params = AsyncParameterClient(self.proxy, 'sim')
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.proxy)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
         self.expect_alive = {'sim': True, 'controller': True}
+        self.broken = False  # a case failed: the next one resets the rig first
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -212,12 +206,8 @@ class Rig:
 
     def close(self) -> None:
         for p in (self.controller, self.sim):
-            p.signal(signal.SIGCONT)
-            p.stop()
-        self.executor.shutdown(timeout_sec=10)
-        self.proxy.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(10)
+            p.stop()  # (SIGCONT first: a case may have left one stopped)
+        self.spun.close()
 
     @property
     def now(self) -> float:
@@ -225,29 +215,17 @@ class Rig:
 
     # ------------------------------------------------------------- waiting
     def _tails(self) -> str:
-        return '\n'.join(f'--- {p.log_path.name} (tail)\n'
-                         f'{p.log_since(max(0, p.log_size() - 2500))}'
-                         for p in (self.sim, self.controller))
+        return '\n'.join(p.tail() for p in (self.sim, self.controller))
 
     def wait(self, predicate: Callable[[], bool], what: str,
              timeout: float = WALL_TIMEOUT) -> None:
         """Wait until ``predicate()`` (evaluated under the proxy's lock) holds."""
-        deadline = threading.Event()
-        timer = threading.Timer(timeout, deadline.set)
-        timer.start()
-        try:
+        def holds() -> bool:
             with self.proxy.cv:
-                while not predicate():
-                    for name, proc in (('sim', self.sim), ('controller', self.controller)):
-                        if self.expect_alive[name] and not proc.alive:
-                            raise AssertionError(f'{name} died while waiting for {what}\n'
-                                                 + self._tails())
-                    if deadline.is_set():
-                        raise AssertionError(f'timed out waiting for {what}; sim time '
-                                             f'{self.now:.3f} s\n' + self._tails())
-                    self.proxy.cv.wait(0.25)
-        finally:
-            timer.cancel()
+                return predicate()
+        alive = [proc for name, proc in (('sim', self.sim), ('controller', self.controller))
+                 if self.expect_alive[name]]
+        wait_for(holds, lambda: f'{what}; sim time {self.now:.3f} s', timeout, alive)
 
     def run_for(self, dt: float) -> float:
         """Let ``dt`` seconds of sim time pass; returns the time reached."""
@@ -328,27 +306,20 @@ class Rig:
                 self.proxy.rate, self.proxy.rate_from = rate, self.proxy.now + 0.005
 
     # ------------------------------------------------------------- parameters
-    @staticmethod
-    def _result(future) -> Any:
-        done = threading.Event()
-        future.add_done_callback(lambda _: done.set())
-        assert done.wait(WALL_TIMEOUT), 'no answer from a parameter service'
-        return future.result()
-
     def set_params(self, client: AsyncParameterClient, **values) -> list:
         """Set each value on its own (like ``ros2 param set``); one result per value."""
         assert client.wait_for_services(timeout_sec=WALL_TIMEOUT)
         params = [Parameter(k, value=v) for k, v in values.items()]
-        return self._result(client.set_parameters(params)).results
+        return wait_future(client.set_parameters(params), WALL_TIMEOUT).results
 
     def set_atomically(self, client: AsyncParameterClient, **values):
         assert client.wait_for_services(timeout_sec=WALL_TIMEOUT)
         params = [Parameter(k, value=v) for k, v in values.items()]
-        return self._result(client.set_parameters_atomically(params)).result
+        return wait_future(client.set_parameters_atomically(params), WALL_TIMEOUT).result
 
     def get_params(self, client: AsyncParameterClient, *names: str) -> list[Any]:
         assert client.wait_for_services(timeout_sec=WALL_TIMEOUT)
-        values = self._result(client.get_parameters(list(names))).values
+        values = wait_future(client.get_parameters(list(names)), WALL_TIMEOUT).values
         return [parameter_value_to_python(v) for v in values]
 
     # ------------------------------------------------------------- cases

@@ -33,7 +33,7 @@ from typing import Any, Callable, Iterable, Sequence
 from hybrid_force_controller.ros.programs.launch import cell_env
 
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository (this is test/helpers/ros.py)
 PARAMS_FILE = ROOT / 'config' / 'params.yaml'
 WALL_TIMEOUT = 120.0  # only against hangs
 CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller.controller_node'
@@ -51,7 +51,7 @@ _DOMAIN_OFFSETS = {
     'discipline': 18, 'discipline_refused': 19, 'realtime_stalls': 20, 'sim_watchdog': 21,
     'wrong_inputs': 22, 'path_ros': 23, 'task_interface': 24, 'contact_normal': 25,
     'surface_normal_ros': 26, 'flight_recorder': 27, 'gateway': 28,
-    'mujoco_ros': 30, 'dds_profile': 31,
+    'mujoco_ros': 30, 'dds_profile': 31, 'fault_inputs': 32,
 }
 
 
@@ -243,24 +243,29 @@ class Spun:
         self.close()
 
 
-def wait_for(predicate: Callable[[], bool], what: str, timeout: float = WALL_TIMEOUT,
-             alive: Iterable[NodeProcess] = (), poll: float = 0.01) -> None:
+def wait_for(predicate: Callable[[], bool], what: str | Callable[[], str],
+             timeout: float = WALL_TIMEOUT, alive: Iterable[NodeProcess] = (),
+             poll: float = 0.01) -> None:
     """
     Wait until ``predicate()`` holds.
 
     Fail (with the processes' log tails) when one of ``alive`` exits or after ``timeout`` s of wall
-    time (a guard against hangs only).
+    time (a guard against hangs only). ``what`` names the condition (a callable: evaluated when
+    the wait fails, for a message that says where things stood then).
     """
     procs = list(alive)
     deadline = time.monotonic() + timeout
     pause = threading.Event()
+
+    def said() -> str:
+        return what() if callable(what) else what
     while not predicate():
         for p in procs:
             if not p.alive:
                 raise AssertionError(f'{p.module} exited ({p.returncode}) while waiting for '
-                                     f'{what}\n{p.tail()}')
+                                     f'{said()}\n{p.tail()}')
         if time.monotonic() > deadline:
-            raise AssertionError(f'timed out waiting for {what}\n'
+            raise AssertionError(f'timed out waiting for {said()}\n'
                                  + '\n'.join(p.tail() for p in procs))
         pause.wait(poll)
 

@@ -11,10 +11,10 @@ import re
 import subprocess
 import sys
 
+from helpers.pins import check_pinned, numbers
 from helpers.ros import domain_id, ISOLATED
 from hybrid_force_controller.tools.bag_io import load_run, RECORD_TOPICS
 import numpy as np
-from pins import check_pinned, numbers
 import pytest
 from rosbags.highlevel import AnyReader
 

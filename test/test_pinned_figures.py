@@ -3,8 +3,8 @@ Pinned figures of the deterministic offline runs (issue 31, item 1).
 
 The targets the other tests assert allow 300-2000 times the measured errors, so a tracking
 regression of ~100x would pass them; here every figure of each run must equal its pin in
-test/pinned_figures.json at a relative 1e-6 (test/pins.py: the tolerance and why). Each run is
-an existing scenario, through the functions its own tests use:
+test/pinned_figures.json at a relative 1e-6 (test/helpers/pins.py: the tolerance and why).
+Each run is an existing scenario, through the functions its own tests use:
 
 * ``paper_theta0.5`` / ``paper_theta1.0``: the ``paper`` executable (tools/paper.py ``main``,
   its figures not drawn) at its defaults, theta_hat(0) half the masses (its default, Fig. 5)
@@ -16,7 +16,7 @@ an existing scenario, through the functions its own tests use:
 * ``panda_path``: the Panda's 4 cm square on its tilted plane (square_path_event at 1 s,
   test_path_runtime), compute_metrics and path_metrics from the path's start;
 * ``panda_normal_sphere``: the Panda learning the normal of a sphere under its 10 cm square
-  (test_normal_closed_loop ``panda_run``), compute_metrics from the path's start and
+  (helpers/offline.py ``panda_run``), compute_metrics from the path's start and
   normal_metrics, with the controller's and the true normals.
 
 The lockstep demo's pin is checked in test_demo.py, on the run its fixture makes.
@@ -30,6 +30,8 @@ from __future__ import annotations
 import dataclasses
 import json
 
+from helpers.offline import panda_run, stiffness_metrics, stiffness_run, STIFFNESSES
+from helpers.pins import check_pinned, numbers
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
                                                        square_path_event)
@@ -38,11 +40,7 @@ from hybrid_force_controller.tools import paper, plots
 from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 from hybrid_force_controller.tools.normal_analysis import normal_metrics
 from hybrid_force_controller.tools.path_analysis import path_metrics
-from pins import check_pinned, numbers
 import pytest
-from test_normal_closed_loop import panda_run
-from test_stiffness_closed_loop import metrics as stiffness_metrics, run as stiffness_run
-from test_stiffness_closed_loop import STIFFNESSES
 
 
 @pytest.fixture(scope='module')

@@ -18,7 +18,6 @@ from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.law.reference import SineReference
 from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0
-from hybrid_force_controller.core.offline.simulator import ArmSimulator
 from hybrid_force_controller.core.runtime.controller_runtime import (ControllerRuntime,
                                                                      InputError, SAFE_DWELL_S)
 from hybrid_force_controller.core.runtime.effort import SafeHold

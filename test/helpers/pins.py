@@ -22,7 +22,7 @@ from pathlib import Path
 import subprocess
 from typing import Any, Mapping
 
-PINS_PATH = Path(__file__).resolve().with_name('pinned_figures.json')
+PINS_PATH = Path(__file__).resolve().parents[1] / 'pinned_figures.json'
 UPDATE_VAR = 'HFC_PIN_UPDATE'
 # The offline runs are deterministic: here every figure repeats bit for bit from process to
 # process. With numpy's SIMD dispatch off (NPY_DISABLE_CPU_FEATURES of X86_V3/V4, AVX512_*) and
@@ -34,10 +34,10 @@ REL_TOL = 1e-6
 # error: n_hat is n) has no relative scale: it may differ by 1e-12 in its unit (s, deg), an
 # exact 0 in practice. Every other figure, however small, is compared at the relative tolerance.
 ABS_FLOOR = 1e-12
-NOTE = ('Pinned figures of the deterministic runs (test/pins.py, test/test_pinned_figures.py, '
-        'test/test_demo.py). "commit": the code that computed them. Every figure is compared '
-        'at rel_tol (abs_floor for a figure pinned at 0), or at the tolerances of its '
-        'scenario in not_bit_exact. A change is made on purpose: HFC_PIN_UPDATE=1 rewrites '
+NOTE = ('Pinned figures of the deterministic runs (test/helpers/pins.py, '
+        'test/test_pinned_figures.py, test/test_demo.py). "commit": the code that computed '
+        'them. Every figure is compared at rel_tol (abs_floor for a figure pinned at 0), '
+        'or at the tolerances of its scenario in not_bit_exact. A change is made on purpose: HFC_PIN_UPDATE=1 rewrites '
         'the figures; the commit that changes this file says why.')
 
 Figures = dict[str, Any]

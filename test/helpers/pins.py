@@ -37,8 +37,9 @@ ABS_FLOOR = 1e-12
 NOTE = ('Pinned figures of the deterministic runs (test/helpers/pins.py, '
         'test/test_pinned_figures.py, test/test_demo.py). "commit": the code that computed '
         'them. Every figure is compared at rel_tol (abs_floor for a figure pinned at 0), '
-        'or at the tolerances of its scenario in not_bit_exact. A change is made on purpose: HFC_PIN_UPDATE=1 rewrites '
-        'the figures; the commit that changes this file says why.')
+        'or at the tolerances of its scenario in not_bit_exact. A change is made on '
+        'purpose: HFC_PIN_UPDATE=1 rewrites the figures; the commit that changes this file '
+        'says why.')
 
 Figures = dict[str, Any]
 

@@ -13,15 +13,15 @@ on a loaded 2-core machine (about 3 times issue 16's targets); the exact figures
 """
 from __future__ import annotations
 
-import signal
 import time
 
-from helpers.ros import domain_id, RealTimeRig, wait_for, wait_future
+from helpers.figures import current_test, report_figure
+from helpers.ros import domain_id, freeze, wait_for, wait_future
+from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.tools.recovery_figures import recovery_figures, theta_steady
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 
 
 FREEZES_MS = (150.0, 300.0, 500.0)
@@ -29,16 +29,7 @@ WINDOW_S = 6.0
 F_D = 1.0
 P0 = np.array([1.0, 1.6, 0.0])  # the tool at q0 (config/params.yaml), on the surface
 N_W = np.array([0.0, -1.0, 0.0])
-THETA_TRUE = np.array([0.65, 1.35])  # the sim's link masses (helpers.ros.MASSES_OFF)
-
-
-def _freeze(rig: RealTimeRig, ms: float) -> tuple[float, float]:
-    """SIGSTOP the controller for ``ms``; return the wall times of the stop and the release."""
-    t_stop = time.time()
-    rig.ctrl.signal(signal.SIGSTOP)
-    time.sleep(ms * 1e-3)  # the freeze itself (the stimulus), not a wait on a condition
-    rig.ctrl.signal(signal.SIGCONT)
-    return t_stop, time.time()
+THETA_TRUE = np.array([0.65, 1.35])  # the sim's link masses (helpers.watch.MASSES_OFF)
 
 
 def _diag(rig: RealTimeRig, name: str) -> dict:
@@ -73,10 +64,10 @@ def run(tmp_path_factory):
         for ms in FREEZES_MS:
             wait_for(lambda: rig.settled(F_D, hold_s=1.0), 'calm before the freeze',
                      alive=rig.procs)
-            freezes.append((ms, *_freeze(rig, ms)))
+            freezes.append((ms, *freeze(rig.ctrl, ms * 1e-3)))
             _run_past(rig, freezes[-1][2] + WINDOW_S + 0.2)
         sim1, ctrl1 = _diag(rig, 'sim'), _diag(rig, 'hybrid_force_controller')
-        drop = AsyncParameterClient(rig.log.node, 'sim').set_parameters(
+        drop = rig.sim_params.set_parameters(
             [Parameter('surface_point', value=(P0 + 0.03 * N_W).tolist())])
         assert wait_future(drop).results[0].successful
         t_drop = time.time()
@@ -84,7 +75,7 @@ def run(tmp_path_factory):
                  alive=rig.procs)
         wait_for(lambda: rig.log.latest_t() > t_drop + 0.4, 'into the approach',
                  alive=rig.procs)
-        approach = (t_drop, *_freeze(rig, 300.0))
+        approach = (t_drop, *freeze(rig.ctrl, 0.3))
         _run_past(rig, approach[2] + 3.0)
         yield {'rig': rig, 'freezes': freezes, 'sim0': sim0, 'sim1': sim1, 'ctrl1': ctrl1,
                'approach': approach}
@@ -99,6 +90,7 @@ def _figures(run, k: int) -> dict:
     t_th, th = rig.log.thetas()
     fig = recovery_figures(t, f, t_stop, t_release, F_D, t_th, th, WINDOW_S)
     print(f'freeze {ms:.0f} ms: {fig}')
+    report_figure(current_test(), freeze_ms=ms, **fig)
     return fig
 
 
@@ -109,6 +101,9 @@ def test_every_freeze_drops_the_arm_on_the_plant_watchdog(run):
     assert run['ctrl1']['stalls'] >= len(FREEZES_MS)
     # trusted by then: the freezes held it, none was provisional; the sine stays off full reach
     assert run['ctrl1']['episode_provisional'] is False and run['ctrl1']['singular_ticks'] == 0
+    # a frozen controller may find its inputs stale when it resumes (safe mode): not counted
+    assert_clean_run(run['ctrl1'], run['sim1'], safe_mode_entries=None,
+                     run=run['rig'].log.statuses('hybrid_force_controller'))
 
 
 @pytest.mark.parametrize('k', range(len(FREEZES_MS)), ids=[f'{m:.0f}ms' for m in FREEZES_MS])
@@ -130,5 +125,8 @@ def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     back = (t > t_release) & (f > 0.1)
     print(f'freeze in an approach: contact {t[np.argmax(back)] - t_release:.3f} s after '
           f'SIGCONT, peak {f[t > t_release].max():.2f} N' if back.any() else 'no contact')
+    report_figure(current_test(), contact_back_s=(float(t[np.argmax(back)] - t_release)
+                                                  if back.any() else None),
+                  peak_force_n=float(f[t > t_release].max()) if (t > t_release).any() else None)
     assert back.any() and t[np.argmax(back)] - t_release <= 2.5
     assert run['ctrl1']['lifecycle_state'] == 'active'

@@ -16,7 +16,8 @@ behind, the wrench 2 s ahead) and the loop tracks again.
 The controller keeps a burst of its inputs (``sensor_depth`` 10) so that a single injected
 message cannot be superseded by the sim's next one before the loop reads it. Times are the
 true force's stamps (the sim's wall clock); waits have a wall timeout against hangs only;
-the exact figures (five runs per case) are in docs/results.md (``wrong_inputs``).
+the exact figures (five runs per case) are in docs/results.md (``wrong_inputs``). The fuzz
+needs a CPU for this process beside the loop's and is skipped on one CPU.
 """
 from __future__ import annotations
 
@@ -24,7 +25,9 @@ import math
 import re
 import time
 
-from helpers.ros import domain_id, MASSES_OFF, RealTimeRig, wait_for
+from helpers.figures import current_test, needs_cpus, report_figure
+from helpers.ros import domain_id, wait_for
+from helpers.watch import MASSES_OFF, RealTimeRig
 from hybrid_force_controller.core.runtime.contact import in_contact
 from hybrid_force_controller.ros.programs.injector import Injector
 from hybrid_force_controller.ros.programs.tracking import TrackingMeter
@@ -97,6 +100,8 @@ class Cell:
         _, f = self.rig.log.forces(t0, t1)
         assert f.size > 10
         rms = float(np.sqrt(np.mean((f - F_D) ** 2)))
+        report_figure(current_test(), rms_force_error_n=rms, f_min=float(f.min()),
+                      f_max=float(f.max()), window_s=t1 - t0)
         assert rms <= rms_f and f.max() <= PEAK_F, (rms, f.max())
         assert all(in_contact(v) for v in f), f'contact lost: min {f.min():.3f} N'
         assert all(p.alive for p in self.rig.procs)
@@ -134,6 +139,7 @@ def test_sensor_clocks_off_for_the_whole_run_are_measured_and_the_loop_tracks(ce
     assert d['wrench_clock_offset_s'] == pytest.approx(-2.0, abs=0.02)
     assert d['joint_state_clock_implausible'] == d['wrench_clock_implausible'] == 0
     fig = cell.tracking.figures(t1 - 1.0, t1)
+    report_figure(current_test(), **fig)
     assert fig['rms_position_error_m'] <= RMS_X, fig
     log = cell.rig.ctrl.log_since()  # one warning per stream
     assert log.count('joint state stamps are 2.0') + log.count('are 1.99') == 1, log[-3000:]
@@ -167,13 +173,16 @@ def test_a_velocity_beyond_the_urdf_limit_is_refused(cell):
            "joint2's velocity")
 
 
+@needs_cpus(2, 'the injector publishes 500 messages/s from this process; on the CPU of the '
+            'loop it starves it (630-1010 N peaks in 2 of 3 runs under taskset -c 0)')
 def test_a_fuzz_of_1000_corrupted_messages_over_2_s(cell):
     """
     The CDR readers and the checks refuse what is wrong; force peak bounded, in contact.
 
     Corruptions within the plausibility bounds (a bit of a velocity, a force changing slower
     than wrench_rate_limit) are indistinguishable from real readings and reach the law: the
-    issue's target is the force peak (3 N), not its RMS.
+    issue's target is the force peak (3 N), not its RMS. Meaningful only with a CPU for the
+    injector beside the loop's (checked first: skipped on one CPU).
     """
     before = cell.diag()
     t0 = time.time()  # the sim stamps the true force with the wall clock
@@ -211,6 +220,7 @@ def test_swapped_offsets_for_a_whole_run(cell, tmp_path):
         assert d['joint_state_clock_offset_s'] == pytest.approx(-2.0, abs=0.02)
         assert d['wrench_clock_offset_s'] == pytest.approx(2.0, abs=0.02)
         fig = other.tracking.figures(t1 - 1.0, t1)
+        report_figure(current_test(), **fig)
         assert fig['rms_position_error_m'] <= RMS_X, fig
     finally:
         other.close()

@@ -88,10 +88,10 @@ def test_the_arms_watchdog_zeroes_the_effort_while_its_driver_stalls():
 
 def test_a_braking_watchdog_holds_the_arm_still_until_the_next_command():
     """
-    Check ``watchdog_action='brake'``: after command_timeout the plant holds the arm still.
+    Brake after command_timeout with ``watchdog_action='brake'``, until the next command.
 
-    No effort, no motion, as a Franka's reflex stops it; the first command after the stall
-    releases it.
+    The plant holds the arm (no effort, no motion, as a Franka's reflex stops it); the
+    first command after the stall releases it.
     """
     e = engine(TimingModel(stalls=(Stall('plant', 0.100, 0.300),)), 0.5, 'brake')
     braked, q_braked, released = [], [], False

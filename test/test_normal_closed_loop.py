@@ -19,9 +19,9 @@ from __future__ import annotations
 import math
 
 from helpers.figures import current_test, report_figure
+from helpers.offline import N_TOLD, panda_run, SURFACES, TILT
 from hybrid_force_controller.core.config.params import build_params
-from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
-                                                       square_path_event)
+from hybrid_force_controller.core.offline.arm7 import panda_model, panda_scenario
 from hybrid_force_controller.core.offline.engine import run_loop
 from hybrid_force_controller.core.offline.environment import make_surface
 from hybrid_force_controller.core.offline.scenario import (run_scenario, ScenarioConfig,
@@ -33,15 +33,6 @@ from hybrid_force_controller.core.runtime.surface import MAX_TILT_RAD
 import numpy as np
 import pytest
 
-TILT = 0.3
-N_TOLD = [0.0, 0.0, -1.0]
-SURFACES = {
-    'tilted about x': {'surface_normal': (0.0, math.sin(TILT), -math.cos(TILT))},
-    'tilted about y': {'surface_normal': (math.sin(TILT), 0.0, -math.cos(TILT))},
-    'cylinder': {'surface_shape': 'cylinder', 'surface_radius': 0.3,
-                 'surface_axis': (0.0, 1.0, 0.0)},
-    'sphere': {'surface_shape': 'sphere', 'surface_radius': 0.5},
-}
 # the issue's targets: normal error (deg), force RMS along the true normal (N), path RMS (m)
 TARGETS = {'tilted about x': (2.0, 0.1), 'tilted about y': (2.0, 0.1),
            'cylinder': (3.0, 0.2), 'sphere': (3.0, 0.2)}
@@ -52,18 +43,6 @@ K_TRUE = 3000.0
 @pytest.fixture(scope='module')
 def panda():
     return panda_model()
-
-
-def panda_run(model, surface: str, estimate: bool = True) -> tuple[ScenarioResult, float]:
-    """Run the Panda's square on ``surface``, told N_TOLD; return the result, the path's t."""
-    sent: dict = {}
-    cfg = panda_scenario(model, 12.0, events=[square_path_event(1.0, 0.1, sent)],
-                         noise_sigma=0.05, seed=1, **SURFACES[surface],
-                         overrides={'n': N_TOLD, 'n_estimation': estimate,
-                                    'ref_amplitude': [0.0, 0.0, 0.0]})
-    result = run_scenario(cfg, model)
-    assert result.runtime._motion.path_progress().state == 'done'
-    return result, sent['t']
 
 
 def normal_error_deg(result: ScenarioResult) -> np.ndarray:

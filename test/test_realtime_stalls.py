@@ -18,6 +18,7 @@ import time
 from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, freeze, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
+from hybrid_force_controller.tools.bag_io import load_run
 from hybrid_force_controller.tools.recovery_figures import recovery_figures, theta_steady
 import numpy as np
 import pytest
@@ -25,6 +26,8 @@ from rclpy.parameter import Parameter
 
 
 FREEZES_MS = (150.0, 300.0, 500.0)
+PEAK_N = 50.0  # issue 30's bound on the approach freeze's peak after SIGCONT
+CONTROL_S = 0.2  # the controller has left safe mode this long after SIGCONT (50 ms fresh)
 WINDOW_S = 6.0
 F_D = 1.0
 P0 = np.array([1.0, 1.6, 0.0])  # the tool at q0 (config/params.yaml), on the surface
@@ -56,7 +59,9 @@ def _run_past(rig: RealTimeRig, t: float) -> None:
 @pytest.fixture(scope='module')
 def run(tmp_path_factory):
     """One real-time run: theta_hat learned, three freezes, a freeze during an approach."""
-    rig = RealTimeRig(tmp_path_factory.mktemp('stalls'), domain_id('realtime_stalls'))
+    tmp = tmp_path_factory.mktemp('stalls')
+    rig = RealTimeRig(tmp, domain_id('realtime_stalls'),
+                      ctrl_args=['-p', f'flight_recorder_dir:={tmp / "flight"}'])
     try:
         rig.start()  # the masses are learned in about 8 s; then theta_hat holds still
         wait_for(lambda: _learned(rig), 'theta_hat learned and trusted', alive=rig.procs)
@@ -78,7 +83,7 @@ def run(tmp_path_factory):
         approach = (t_drop, *freeze(rig.ctrl, 0.3))
         _run_past(rig, approach[2] + 3.0)
         yield {'rig': rig, 'freezes': freezes, 'sim0': sim0, 'sim1': sim1, 'ctrl1': ctrl1,
-               'approach': approach}
+               'approach': approach, 'flight': tmp / 'flight'}
     finally:
         rig.close()
 
@@ -117,16 +122,42 @@ def test_the_force_comes_back_and_theta_hat_holds(run, k):
 
 
 def test_a_freeze_during_an_approach_ends_on_the_surface(run):
-    """The surface dropped 3 cm; frozen 300 ms into the approach: in contact <= 2.5 s after."""
+    """
+    The surface dropped 3 cm; frozen 300 ms into the approach: in contact <= 2.5 s after.
+
+    The controller's peak is bounded at PEAK_N: the largest true force from CONTROL_S after
+    SIGCONT, once it has left safe mode. Before that the force is the fall's: the arm fell
+    onto the surface at zero effort during the freeze (67 N at the impact), the release
+    meets the bounce's tail (34-50 N) and the safe hold keeps the arm where the bounce put
+    it until both inputs have been fresh for 50 ms: printed, not bounded. The bound is for
+    what the runtime did before docs/results.md section 16's fixes: 426-512 N at the effort
+    limits, or the arm flung off the surface (then the end of the window fails).
+    """
     rig = run['rig']
     t_drop, _, t_release = run['approach']
     t, f = rig.log.forces(t_drop)
     assert (f[t < t_release] < 0.05).any(), 'the drop did not break contact'
     back = (t > t_release) & (f > 0.1)
+    tail, peak = float(f[t > t_release].max()), float(f[t > t_release + CONTROL_S].max())
     print(f'freeze in an approach: contact {t[np.argmax(back)] - t_release:.3f} s after '
-          f'SIGCONT, peak {f[t > t_release].max():.2f} N' if back.any() else 'no contact')
+          f"SIGCONT, the fall's tail {tail:.2f} N, then peak {peak:.2f} N" if back.any()
+          else 'no contact')
     report_figure(current_test(), contact_back_s=(float(t[np.argmax(back)] - t_release)
                                                   if back.any() else None),
-                  peak_force_n=float(f[t > t_release].max()) if (t > t_release).any() else None)
+                  tail_force_n=tail, peak_force_n=peak)
     assert back.any() and t[np.argmax(back)] - t_release <= 2.5
+    end = (t > t_release + 2.5) & (t <= t_release + 3.0)
+    assert end.any() and np.all(f[end] > 0.1), (  # on the surface at the end, not bounced off
+        f'{f[end]} N at 2.5-3 s after SIGCONT; flight logs in {run["flight"]}')
+    assert peak <= PEAK_N, f'peak {peak:.1f} N after SIGCONT; flight logs in {run["flight"]}'
     assert run['ctrl1']['lifecycle_state'] == 'active'
+
+
+def test_the_freezes_leave_readable_flight_logs(run):
+    """Each freeze is a stall the flight recorder dumps: bags that load_run reads."""
+    bags = sorted(p for p in run['flight'].glob('flight_*') if p.is_dir())
+    assert bags, f'no flight log in {run["flight"]}'
+    assert any('stall' in p.name or 'safe_mode' in p.name for p in bags), bags
+    for bag in bags:
+        log = load_run(bag)
+        assert 0 < log.t.size <= 2000 and np.all(np.isfinite(log.x_W)), bag  # <= 2 s

@@ -18,7 +18,8 @@ from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.law.reference import SineReference
 from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0
-from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, InputError
+from hybrid_force_controller.core.runtime.controller_runtime import (ControllerRuntime,
+                                                                     InputError, SAFE_DWELL_S)
 from hybrid_force_controller.core.runtime.effort import SafeHold
 import numpy as np
 import pytest
@@ -181,12 +182,12 @@ def outage(model):
     Track until 3 s.
 
     Then no inputs for 150 ms (the plant keeps running under the runtime's effort), then inputs
-    resume for 50 ms.
+    resume for 100 ms (safe mode ends SAFE_DWELL_S after they do).
     """
     loop = Loop(model)
     t_stop, t_resume = 3.0, 3.15
     rows = []
-    while loop.t < t_resume + 0.05 - DT / 2:
+    while loop.t < t_resume + 0.1 - DT / 2:
         t = loop.t
         feed = not (t_stop - DT / 2 <= t < t_resume - DT / 2)
         xdot = model.kinematics(loop.meas.q, loop.meas.qdot).xdot
@@ -233,9 +234,11 @@ def test_resume_returns_to_running_without_torque_jump(model, outage):
     "does not jump" stays below that. In steady tracking one tick changes the effort by ~0.01 N m.
     """
     loop, rows = outage
-    i = next(k for k, r in enumerate(rows) if r[0] >= 3.15 - DT / 2)
-    last_safe, first_run = rows[i - 1], rows[i]
-    assert last_safe[1] == 'safe' and first_run[1] == 'running'
+    j = next(k for k, r in enumerate(rows) if r[1] == 'safe')
+    i = next(k for k in range(j, len(rows)) if rows[k][1] == 'running')
+    last_safe, first_run = rows[i - 1], rows[i]  # safe mode ends once the inputs held fresh
+    assert last_safe[1] == 'safe'
+    assert 3.15 + SAFE_DWELL_S - DT / 2 <= first_run[0] <= 3.15 + SAFE_DWELL_S + 3 * DT
     assert all(r[1] == 'running' for r in rows[i:])
     jump = np.abs(first_run[2] - last_safe[2]).max()
     assert jump < 10.0, f'effort jumps by {jump:.1f} N m: {last_safe[2]} -> {first_run[2]}'

@@ -16,17 +16,15 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from helpers.offline import stiffness_metrics as metrics, stiffness_run as run, STIFFNESSES
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.engine import Event
-from hybrid_force_controller.core.offline.scenario import (run_scenario, ScenarioConfig,
-                                                           ScenarioResult)
+from hybrid_force_controller.core.offline.scenario import ScenarioResult
 from hybrid_force_controller.core.offline.timing import TimingModel
-from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 import pytest
 
 
-STIFFNESSES = (300.0, 500.0, 1700.0, 5000.0)
 SCALES = (0.5, 1.5)
 
 
@@ -47,16 +45,6 @@ def time_within(res: ScenarioResult, tol: float) -> float:
     if outside[-1] + 1 >= res.t.size:
         return math.inf
     return float(res.t[outside[-1] + 1]) - t_contact(res)
-
-
-def run(model, k, scale, duration=12.0, **kw) -> ScenarioResult:
-    kw.setdefault('delay_steps', 2)
-    return run_scenario(ScenarioConfig(k=k, theta_hat0_scale=scale, duration=duration,
-                                       **kw), model)
-
-
-def metrics(res: ScenarioResult) -> dict:
-    return compute_metrics(RunLog.from_result(res), t_start=5.0)
 
 
 # ---------------------------------------------------------------- targets

@@ -22,7 +22,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 
 from .bag_io import load_run, TOPIC_JOINT_STATES, TOPIC_X, TYPESTORE
-from .recovery_figures import settle_time
+from .recovery_figures import first_hold, settle_time
 
 __all__ = ['AFTER_STALL_S', 'trial_figures', 'urdf_velocity_limits']
 
@@ -56,19 +56,6 @@ def _joint_speed(bag: Path, limits: dict[str, float]) -> tuple[float, str, float
     return worst, name, t0
 
 
-def _first_hold(t: np.ndarray, ok: np.ndarray, t0: float, hold_s: float = HOLD_S) -> float:
-    """Return the time after ``t0`` at which ``ok`` starts to hold ``hold_s`` (NaN: never)."""
-    start = math.nan
-    for ti, good in zip(t[t >= t0], ok[t >= t0]):
-        if not good:
-            start = math.nan
-        elif math.isnan(start):
-            start = ti
-        if not math.isnan(start) and ti - start >= hold_s:
-            return float(start - t0)
-    return math.nan
-
-
 def trial_figures(bag: Path, stall: tuple[float, float] | None = None,
                   urdf: Path = PANDA_URDF) -> dict[str, float | str | bool]:
     """Return the module docstring's figures; ``stall``: wall times of stop and release."""
@@ -89,7 +76,7 @@ def trial_figures(bag: Path, stall: tuple[float, float] | None = None,
         keep &= ~after
         out.update(stall_in_path=bool(running.any() and t[running][0] < t_stop
                                       < t[running][-1]),
-                   back_s=round(_first_hold(t, log.in_contact, t_release), 3),
+                   back_s=round(first_hold(t, log.in_contact, t_release, HOLD_S), 3),
                    settle_s=round(settle_time(t, f_n - f_d, t_release, 0.0,
                                               0.1 * float(np.max(f_d)), HOLD_S), 3),
                    peak_force_n=round(float(f_n[after].max()), 2) if after.any() else math.nan)

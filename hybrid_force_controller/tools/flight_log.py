@@ -20,12 +20,20 @@ the topics a recording of the controller has, one message per tick, so ``load_ru
 
 Log times are the tick times (the loop clock: wall or sim time), so headerless topics line
 up with the stamped ones.
+
+The controller writes its dumps in a process of their own (``python -m
+hybrid_force_controller.tools.flight_log SNAPSHOT.npz BAG``): :func:`save_snapshot` puts the
+copied ring in an ``.npz`` file (a few ms, mostly I/O), and this module's :func:`main` turns it
+into the bag and removes it. The 0.3-0.5 s of Python that the messages take then never holds
+the controller's GIL.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 import re
+import sys
 import time
 from typing import Any, Sequence
 
@@ -38,7 +46,7 @@ from ..core.runtime.flight_recorder import FlightSnapshot, MODES
 
 __all__ = ['FLIGHT_TOPICS', 'TOPIC_FLIGHT_CONTACT', 'TOPIC_FLIGHT_HOLD', 'TOPIC_FLIGHT_MODE',
            'TOPIC_FLIGHT_TRIGGER', 'TOPIC_FLIGHT_WRENCH_STAMP', 'flight_log_path',
-           'write_flight_log']
+           'load_snapshot', 'main', 'save_snapshot', 'write_flight_log']
 
 _PREFIX = '/hybrid_force_controller/flight/'
 TOPIC_FLIGHT_MODE = _PREFIX + 'mode'
@@ -177,3 +185,55 @@ def write_flight_log(path: str | Path, snap: FlightSnapshot, joint_names: Sequen
             t = t_trigger if math.isfinite(t_trigger) else float(snap.t[-1])
             writer.write_msg(TOPIC_FLIGHT_TRIGGER, _ns(t), _T['std_msgs/msg/String'](data=reason))
     return path
+
+
+def save_snapshot(path: str | Path, snap: FlightSnapshot, joint_names: Sequence[str],
+                  theta_names: Sequence[str], base_frame: str = 'base_link',
+                  reason: str = '', t_trigger: float = math.nan) -> Path:
+    """Save ``snap`` and :func:`write_flight_log`'s other arguments as an ``.npz`` file."""
+    path = Path(path)
+    arrays = {f.name: getattr(snap, f.name) for f in dataclasses.fields(snap)}
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, 'wb') as out:
+            np.savez(out, **arrays, joint_names=np.array(list(joint_names)),
+                     theta_names=np.array(list(theta_names)), base_frame=np.array(base_frame),
+                     reason=np.array(reason), t_trigger=np.array(t_trigger))
+    except OSError as exc:
+        raise BagError(f'cannot save the flight snapshot {path}: {exc}') from exc
+    return path
+
+
+def load_snapshot(path: str | Path) -> tuple[FlightSnapshot, dict[str, Any]]:
+    """Return the snapshot :func:`save_snapshot` saved and its write_flight_log arguments."""
+    with np.load(path) as data:
+        snap = FlightSnapshot(**{f.name: (int(data[f.name]) if f.name == 'dropped'
+                                          else data[f.name].copy())
+                                 for f in dataclasses.fields(FlightSnapshot)})
+        kwargs = {'joint_names': [str(j) for j in data['joint_names']],
+                  'theta_names': [str(j) for j in data['theta_names']],
+                  'base_frame': str(data['base_frame']), 'reason': str(data['reason']),
+                  't_trigger': float(data['t_trigger'])}
+    return snap, kwargs
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Write the bag ``argv[1]`` from the snapshot file ``argv[0]``, then remove it; 0 or 2."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 2:
+        print('usage: python -m hybrid_force_controller.tools.flight_log SNAPSHOT.npz BAG',
+              file=sys.stderr)
+        return 2
+    try:
+        snap, kwargs = load_snapshot(args[0])
+        write_flight_log(args[1], snap, **kwargs)
+    except (BagError, OSError, KeyError, ValueError) as exc:
+        print(f'flight_log: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        Path(args[0]).unlink(missing_ok=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

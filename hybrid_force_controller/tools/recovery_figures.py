@@ -20,7 +20,25 @@ import math
 
 import numpy as np
 
-__all__ = ['recovery_figures', 'settle_time', 'theta_steady']
+__all__ = ['first_hold', 'recovery_figures', 'settle_time', 'theta_steady']
+
+
+def first_hold(t: np.ndarray, ok: np.ndarray, t0: float, hold_s: float = 0.2) -> float:
+    """
+    Return the time after ``t0`` at which ``ok`` starts to hold for ``hold_s``, s.
+
+    ``t`` are the sample times (s, increasing) of the flags ``ok``; NaN if it never does.
+    """
+    after = t >= t0
+    start = math.nan
+    for ti, good in zip(t[after], ok[after]):
+        if not good:
+            start = math.nan
+        elif math.isnan(start):
+            start = ti
+        if not math.isnan(start) and ti - start >= hold_s:
+            return float(start - t0)
+    return math.nan
 
 
 def settle_time(t: np.ndarray, f: np.ndarray, t0: float, f_d: float, tol: float = 0.1,
@@ -30,17 +48,7 @@ def settle_time(t: np.ndarray, f: np.ndarray, t0: float, f_d: float, tol: float 
 
     ``t`` are the sample times (s, increasing) of the forces ``f`` (N); NaN if it never does.
     """
-    after = t >= t0
-    t, ok = t[after], np.abs(f[after] - f_d) <= tol
-    start = math.nan
-    for ti, good in zip(t, ok):
-        if not good:
-            start = math.nan
-        elif math.isnan(start):
-            start = ti
-        if not math.isnan(start) and ti - start >= hold_s:
-            return float(start - t0)
-    return math.nan
+    return first_hold(t, np.abs(f - f_d) <= tol, t0, hold_s)
 
 
 def theta_steady(t: np.ndarray, theta: np.ndarray, span_s: float = 2.0,

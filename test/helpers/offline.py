@@ -6,19 +6,28 @@ Helpers of the offline tests (no ROS): loops, plants and synthetic signals they 
 * :func:`synthetic_press`: a press oscillating on a spring, the stiffness estimate's input, and
   :func:`stiffness_estimator`, :func:`feed_estimator`, :func:`k_s_series` to run one on it;
 * :func:`mujoco_arm`, :func:`mujoco_press`: the paper's arm or the Panda on MuJoCo, and a
-  damped, gravity-compensated press of its tool (:data:`R_TOOL` its radius).
+  damped, gravity-compensated press of its tool (:data:`R_TOOL` its radius);
+* :func:`panda_run` (:data:`SURFACES`, :data:`N_TOLD`): the Panda's square on a tilted or
+  curved part, told a flat one (test_normal_closed_loop, the pins);
+* :func:`stiffness_run`, :func:`stiffness_metrics` (:data:`STIFFNESSES`): issue 13's runs
+  (test_stiffness_closed_loop, the pins).
 """
 from __future__ import annotations
 
+import math
+
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.model.robot_model import default_urdf_path, RobotModel
-from hybrid_force_controller.core.offline.arm7 import panda_model, PANDA_Q0, panda_urdf_path
+from hybrid_force_controller.core.offline.arm7 import (panda_model, PANDA_Q0, panda_scenario,
+                                                       panda_urdf_path, square_path_event)
 from hybrid_force_controller.core.offline.engine import LoopEngine
 from hybrid_force_controller.core.offline.environment import ElasticSurface, sensor_wrench_from_f_W
-from hybrid_force_controller.core.offline.scenario import PAPER_Q0
+from hybrid_force_controller.core.offline.scenario import (PAPER_Q0, run_scenario, ScenarioConfig,
+                                                           ScenarioResult)
 from hybrid_force_controller.core.offline.simulator import ArmSimulator
 from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
 from hybrid_force_controller.core.runtime.filters import LowPassFilter
+from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
 import numpy as np
 
 
@@ -141,3 +150,41 @@ def mujoco_press(model, plant, f_W, steps=3000):
         tau = g + J.T @ (f_W - 30.0 * (J @ meas.qdot)) - 2.0 * meas.qdot
         meas = plant.step(tau, 1e-3)
     return meas
+
+
+TILT = 0.3
+N_TOLD = [0.0, 0.0, -1.0]
+SURFACES = {
+    'tilted about x': {'surface_normal': (0.0, math.sin(TILT), -math.cos(TILT))},
+    'tilted about y': {'surface_normal': (math.sin(TILT), 0.0, -math.cos(TILT))},
+    'cylinder': {'surface_shape': 'cylinder', 'surface_radius': 0.3,
+                 'surface_axis': (0.0, 1.0, 0.0)},
+    'sphere': {'surface_shape': 'sphere', 'surface_radius': 0.5},
+}
+
+
+def panda_run(model, surface: str, estimate: bool = True) -> tuple[ScenarioResult, float]:
+    """Run the Panda's square on ``surface``, told N_TOLD; return the result, the path's t."""
+    sent: dict = {}
+    cfg = panda_scenario(model, 12.0, events=[square_path_event(1.0, 0.1, sent)],
+                         noise_sigma=0.05, seed=1, **SURFACES[surface],
+                         overrides={'n': N_TOLD, 'n_estimation': estimate,
+                                    'ref_amplitude': [0.0, 0.0, 0.0]})
+    result = run_scenario(cfg, model)
+    assert result.runtime._motion.path_progress().state == 'done'
+    return result, sent['t']
+
+
+STIFFNESSES = (300.0, 500.0, 1700.0, 5000.0)
+
+
+def stiffness_run(model, k, scale, duration=12.0, **kw) -> ScenarioResult:
+    """Run the paper's scenario on a surface of stiffness ``k``, theta_hat(0) ``scale`` off."""
+    kw.setdefault('delay_steps', 2)
+    return run_scenario(ScenarioConfig(k=k, theta_hat0_scale=scale, duration=duration,
+                                       **kw), model)
+
+
+def stiffness_metrics(res: ScenarioResult) -> dict:
+    """Return the run's metrics from 5 s."""
+    return compute_metrics(RunLog.from_result(res), t_start=5.0)

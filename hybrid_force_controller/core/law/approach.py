@@ -12,7 +12,10 @@ Why a distance limit: the surface was last seen where contact was lost (or, at s
 near the tool); a surface that moved further than ``approach_limit`` is a changed scene
 (a removed workpiece, a wrong ``n``), and pressing on into free space would only end in a
 collision at speed. So the search is bounded in distance, which bounds its time as
-``limit / speed`` (2 s with the defaults), and then the arm holds and reports.
+``limit / speed`` (2 s with the defaults), and then the arm holds and reports. The limit
+counts from where the surface was last touched when the tool is now short of it
+(``x_seen``): an arm thrown back off the surface (a stall's fall bounced it 5 cm up, seen
+in real time) goes back to it and ``limit`` beyond, instead of giving up in mid-air.
 
 The reference moves in absolute terms: it never waits for the tool, so ``limit`` counts
 real travel in space and the search ends in a bounded time whatever the model. What it
@@ -44,20 +47,22 @@ class Approach:
 
     def __init__(self, speed: float, limit: float) -> None:
         self.configure(speed, limit)
-        self.x0 = self.x = self.v = self.a = 0.0
+        self.x0 = self.x = self.v = self.a = self.end = 0.0
         self.exhausted = False
 
     def configure(self, speed: float, limit: float) -> None:
         self.speed, self.limit = speed, limit
         self.a_max = max(speed, 1e-6) / RAMP_S
 
-    def start(self, x_n: float, v_n: float) -> None:
+    def start(self, x_n: float, v_n: float, x_seen: float = -math.inf) -> None:
         """
         Begin at position ``x_n`` (m along n) with velocity ``v_n`` (m/s).
 
-        The velocity is clipped into ``[0, speed]``.
+        The velocity is clipped into ``[0, speed]``. The search ends ``limit`` beyond
+        ``max(x_n, x_seen)``, ``x_seen`` where the surface was last touched (m along n).
         """
         self.x0, self.x, self.a, self.exhausted = x_n, x_n, 0.0, False
+        self.end = max(x_n, x_seen) + self.limit
         self.v = min(max(v_n, 0.0), self.speed)
 
     def step(self, dt: float, x_n: float) -> ApproachRef:
@@ -69,7 +74,7 @@ class Approach:
         with the defaults, to overcome a model error).
         """
         if not self.exhausted:
-            self._advance(dt, self.x0 + self.limit)
+            self._advance(dt, self.end)
         return ApproachRef(min(self.x, x_n + LAG_M), self.v, self.a)
 
     def _advance(self, dt: float, end: float) -> None:

@@ -14,7 +14,11 @@ explicit mode (:class:`Mode`):
 * ``NO_SURFACE``: the approach travelled ``approach_limit`` without contact: hold, report;
 * ``SAFE``: inputs older than ``state_timeout`` (a frozen wrench counts as old), or the
   law failed: stop the tool smoothly and hold it (effort.py ``SafeHold``, continuous with
-  the last effort), theta_hat and h frozen.
+  the last effort), theta_hat and h frozen. It ends once both inputs have been fresh for
+  :data:`SAFE_DWELL_S`: after a stall the backlog of old messages alternates with new ones,
+  and a law that ran for the few ms between them met a state 4.5 cm from the last and
+  saturated, a command the hold then kept for 100 ms (real time: the paper's arm flung
+  20 cm off the surface, or pressed into it at 426-512 N).
 
 Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference from the
 arm's position and velocity (no effort jump; after ``SAFE`` the reference goes on from where it
@@ -60,6 +64,7 @@ __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 
 _STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
 FIRST_TOUCH_S = 0.2  # with n_estimation: the reference's time starts after this long touching
+SAFE_DWELL_S = 0.05  # safe mode ends once both inputs have been fresh this long, s
 _COUNTERS = ('ticks', 'joint_state_dropped', 'joint_state_implausible',
              'joint_state_clock_implausible', 'wrench_dropped', 'wrench_implausible',
              'wrench_clock_implausible', 'safe_mode_entries', 'control_errors',
@@ -88,6 +93,7 @@ class ControllerRuntime(RuntimeInterface):
         self.validator = SetValidator(model)
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
         self._restarted = False  # a restart's episode begins at the next start
+        self._fresh_since = math.inf  # since when both inputs are fresh (SAFE_DWELL_S)
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -138,12 +144,18 @@ class ControllerRuntime(RuntimeInterface):
         f_W = self._in.filtered_force()
         stale = self._in.stale(t)
         if stale:
+            self._fresh_since = math.inf
             return self._safe(f_W, stale, t)
+        self._fresh_since = min(self._fresh_since, t)
+        if self.mode == Mode.SAFE and t - self._fresh_since < SAFE_DWELL_S:
+            return self._safe(f_W, self.last_safe_reason, t)  # fresh, not yet for long
         dt_state, dt_int = self._state_step(stalled or self._restarted)
         if self._motion.force_ramping:
             self.ctrl.set_force_setpoint(*self._motion.force_step(dt_state))
         f_n = float(self._normal.n_W.dot(f_W))
         touching = self._contact.update(f_n, self.ctrl.f_d, self._in.state.t)
+        if touching:
+            self._motion.note_contact(self._in.kin().x)
         if self._normal.enabled and dt_state > 0.0:  # the normal estimate (surface.py)
             self._normal.update(f_W, self._in.kin(), dt_state, touching, self._motion)
         if touching and self._in.tare is not None:
@@ -310,15 +322,16 @@ class ControllerRuntime(RuntimeInterface):
     def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
         """Hold (effort.SafeHold): a smooth stop, impedance only while the joint state is fresh."""
         law, s = self._params.law, self._in.state
+        fresh = t - s.t <= self._params.runtime.state_timeout
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
             self._begin('safe_mode', t)  # theta_hat may change: latch with the held one
-            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last)
+            self._hold.latch(t, f_W, s.q, s.qdot, self.ctrl.theta_hat, self._command.tau_last,
+                             fresh)
             self._clock.pause(s.t)  # the reference pauses (_start)
             self._motion.pause_path()
         self.mode = Mode.SAFE
-        fresh = t - s.t <= self._params.runtime.state_timeout
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
                                      law.k_null, fresh)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)

@@ -114,6 +114,12 @@ class SafeHold:
     held, would act as a constant push). Adding the live force instead of the latched one would
     cancel the surface's reaction (with a stale q: a positive feedback).
 
+    A hold that began on a stale joint state (a stall: the first tick after it sees the
+    state from before it) takes its reference's start from the first fresh state instead:
+    held to the stale position, the impedance pulled the arm back to where it was before the
+    stall, at the effort limits (real time: 4.5 cm after a 300 ms freeze of the controller,
+    the paper's arm flung off the surface or pressed into it at 426-512 N).
+
     :math:`\tau_{offset}` is the last effort out minus :math:`\hat g + J^T f_{hold}` at entry:
     what the law was adding beyond the model (the force loop's integral, the estimate's
     residual, the reference's acceleration), held as an effort controller holds its last
@@ -134,18 +140,22 @@ class SafeHold:
         self.f_hold = np.zeros(model.m)
         self.tau_offset = np.zeros(model.n)
         self.t0, self.x0, self.v0 = 0.0, np.zeros(model.m), np.zeros(model.m)
+        self.motion_fresh = True  # x0, v0 come from a fresh joint state
 
     def latch(self, t: float, f_W: np.ndarray, q: np.ndarray, qdot: np.ndarray,
-              theta_hat: np.ndarray, tau_last: np.ndarray | None) -> None:
+              theta_hat: np.ndarray, tau_last: np.ndarray | None,
+              fresh_state: bool = True) -> None:
         """
         Begin a hold at time ``t``: latch the force ``f_W`` (base frame) and the tool's motion.
 
         ``q``, ``qdot`` are a validated (finite) joint state; ``tau_last`` is the last effort
-        out (None, or not finite: no offset).
+        out (None, or not finite: no offset). Without ``fresh_state`` the motion is taken
+        again from the first fresh state (:meth:`effort`).
         """
         self.f_hold = np.array(f_W[self.model.task_index], dtype=float)
         tau, kin = self._static(q, qdot, theta_hat)
         self.t0, self.x0, self.v0 = t, kin.x.copy(), kin.xdot.copy()
+        self.motion_fresh = fresh_state
         offset = self._zero if tau_last is None else tau_last - tau
         self.tau_offset = offset if np.all(np.isfinite(offset)) else self._zero
 
@@ -163,6 +173,9 @@ class SafeHold:
         tau, kin = self._static(q, qdot, theta_hat)
         tau += self.tau_offset
         if fresh_state:
+            if not self.motion_fresh:  # the hold began on a stale state: start from this one
+                self.t0, self.x0, self.v0 = t, kin.x.copy(), kin.xdot.copy()
+                self.motion_fresh = True
             x_h, xdot_h = self.reference(t)
             tau += kin.J_ee.T @ (k_d * (xdot_h - kin.xdot) + (k_d * lambda1) * (x_h - kin.x))
             if self.model.redundant:

@@ -17,6 +17,8 @@ the run's (``tau``, s since its start) or the joint-state stamps (``t``); nothin
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .path_run import IDLE, PATH_STOPPED, PathProgress, PathRun
@@ -54,6 +56,7 @@ class Motion:
         self.approach = Approach(0.0, 0.0)
         self.handover = Handover()
         self.r_n = self.rdot_n = 0.0  # the last tick's normal r (m/s) and rdot term (m/s^2)
+        self.x_seen = -math.inf  # where the tool last touched the surface, m along n
         self.path: PathRun | None = None
         self._last = IDLE  # the progress of the last path released
         self.force = ForceRamp(params.law.f_d, params.runtime.f_d_rate)  # f_d(t)
@@ -178,9 +181,13 @@ class Motion:
             self.n_task, self._n_moved = self.n_W[self.task_index], False
         return self.n_task
 
+    def note_contact(self, x_task: np.ndarray) -> None:
+        """Note the tool's task position while it touches (an approach's limit counts on)."""
+        self.x_seen = float(self._n_of_task() @ x_task)
+
     def enter_approach(self, x_task: np.ndarray) -> None:
         """Begin an approach from the tool's task position, with its normal velocity."""
-        self.approach.start(float(self._n_of_task() @ x_task), self.r_n)
+        self.approach.start(float(self._n_of_task() @ x_task), self.r_n, self.x_seen)
 
     def approach_step(self, dt: float, x_task: np.ndarray) -> ApproachRef:
         """Advance the approach ``dt`` seconds with the tool at ``x_task``; what the law tracks."""

@@ -68,8 +68,9 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
        '(inputs and stamps, x, x_d, f, f_d, mode, theta_hat, effort, hold time) and, on safe '
        'mode, a force above flight_recorder_max_force, contact lost in the force loop or a '
        'stall longer than state_timeout, the node writes them there as an MCAP bag (at most '
-       "one every 5 s; its path is logged; readable by report --t-start 0). '' (the default): "
-       'off, until its dump writing is shown not to disturb the loop.',
+       'one every 5 s, written by a process of its own; its path is logged; readable by '
+       "report --t-start 0). '' (the default): off; e.g. $ROS_HOME/hybrid_force_controller/"
+       'flight.',
        read_only=True),
     _S('flight_recorder_max_force', 'double', 50.0,
        'A filtered force |f| above this (N) makes the flight recorder write its last 2 s '

@@ -20,7 +20,7 @@ from hybrid_force_controller.core.offline.scenario import ScenarioConfig
 from hybrid_force_controller.core.runtime.flight_recorder import FlightRecorder, MODES
 from hybrid_force_controller.core.runtime.inputs import JointSample
 from hybrid_force_controller.core.runtime.modes import Mode, TickOutput
-from hybrid_force_controller.ros.controller.flight_dumps import FlightDumps
+from hybrid_force_controller.ros.controller.flight_dumps import AFTER_S, FlightDumps
 from hybrid_force_controller.tools import report
 from hybrid_force_controller.tools.bag_io import load_run, TOPIC_X
 from hybrid_force_controller.tools.flight_bench import _runtime, _stream
@@ -251,7 +251,8 @@ def filled(rows: int = 100) -> FlightRecorder:
 def test_dumps_are_written_off_the_thread_at_most_one_per_interval(tmp_path):
     rec, now = filled(), [1000.0]
     lines: list[str] = []
-    dumps = FlightDumps(tmp_path / 'flight', MODEL, lines.append, clock=lambda: now[0])
+    dumps = FlightDumps(tmp_path / 'flight', MODEL, lines.append, clock=lambda: now[0],
+                        after_s=0.0)
     rec.trigger('safe mode (x)', 101.5)
     rec.trigger('stall (120 ms since the previous tick)', 101.6)
     dumps.poll(rec)
@@ -283,11 +284,39 @@ def test_dumps_are_written_off_the_thread_at_most_one_per_interval(tmp_path):
     assert lines[2].startswith('flight recorder: 3 dumps written, the last in this run')
 
 
+def test_a_dump_holds_what_followed_its_trigger(tmp_path):
+    """The ring is copied AFTER_S after the first request: the ticks after the fault are in it."""
+    rec, now, lines = filled(), [1000.0], []
+    dumps = FlightDumps(tmp_path / 'flight', MODEL, lines.append, clock=lambda: now[0])
+    assert dumps.after_s == AFTER_S == 0.5
+    rec.trigger('safe mode (x)', 100.099)
+    dumps.poll(rec)
+    for k in range(100, 400):  # the loop goes on: 0.3 s of ticks
+        rec.record(100.0 + 1e-3 * k, sample(k), 100.0, tick_output(k))
+    rec.trigger('a force above 50 N', 100.2)
+    now[0] += 0.49
+    dumps.poll(rec)  # not yet: the request joined the pending dump
+    dumps.join()
+    assert dumps.dumps == 0 and not lines and dumps.skipped == 0
+    now[0] += 0.01
+    dumps.poll(rec)
+    dumps.join()
+    assert dumps.dumps == 1 and lines[0].startswith(
+        'flight recorder: safe mode (x); a force above 50 N at t=100.099: '), lines
+    t = load_run(lines[0].split(': ')[-1]).t
+    assert len(t) == 400 and t[-1] - t[0] == pytest.approx(0.399)  # 300 ticks after the trigger
+    rec.trigger('stall (1 s)', 101.0)  # pending when the node ends: written with what is there
+    now[0] += 5.0
+    dumps.poll(rec)
+    dumps.join(recorder=rec)
+    assert dumps.dumps == 2 and lines[1].endswith('_stall_1_s'), lines
+
+
 def test_a_dump_that_cannot_be_written_says_why(tmp_path):
     blocker = tmp_path / 'file'
     blocker.write_text('')
     lines: list[str] = []
-    rec, dumps = filled(), FlightDumps(blocker / 'flight', MODEL, lines.append)
+    rec, dumps = filled(), FlightDumps(blocker / 'flight', MODEL, lines.append, after_s=0.0)
     rec.trigger('stall (1 s)', 5.0)
     dumps.poll(rec)
     dumps.join()

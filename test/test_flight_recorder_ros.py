@@ -72,11 +72,17 @@ def test_a_frozen_sim_leaves_a_flight_log_of_the_safe_mode(tmp_path):
     assert log.theta_names == ('m_joint1', 'm_joint2')
     with AnyReader([bag], default_typestore=TYPESTORE) as reader:
         conns = {c.topic: c for c in reader.connections}
-        modes = [reader.deserialize(raw, c.msgtype).data
-                 for c, _, raw in reader.messages([conns[TOPIC_FLIGHT_MODE]])]
+        ticks = [(ts * 1e-9, reader.deserialize(raw, c.msgtype).data)
+                 for c, ts, raw in reader.messages([conns[TOPIC_FLIGHT_MODE]])]
         [trigger] = [reader.deserialize(raw, c.msgtype).data
                      for c, _, raw in reader.messages([conns[TOPIC_FLIGHT_TRIGGER]])]
     assert trigger == reason
-    # running before the freeze, safe after it (a loaded start-up may still show 'waiting')
-    assert Mode.RUNNING.value in modes and modes[-1] == Mode.SAFE.value, set(modes)
+    # running before the freeze (a loaded start-up may still show 'waiting'), safe at the
+    # trigger, and what followed it: the ring is copied AFTER_S (0.5 s) after the trigger
+    modes = [m for _, m in ticks]
+    assert Mode.SAFE.value in modes, set(modes)
+    at = modes.index(Mode.SAFE.value)  # the trigger's tick (its time is logged to 1 ms)
+    assert abs(ticks[at][0] - t_dump) < 2e-3, (ticks[at][0], t_dump)
+    assert Mode.RUNNING.value in modes[:at], set(modes[:at])
+    assert ticks[-1][0] > t_dump, (ticks[-1][0], t_dump)  # ticks after the trigger are in it
     assert set(modes) <= {m.value for m in MODES}

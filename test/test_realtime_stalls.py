@@ -138,13 +138,15 @@ def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     t, f = rig.log.forces(t_drop)
     assert (f[t < t_release] < 0.05).any(), 'the drop did not break contact'
     back = (t > t_release) & (f > 0.1)
-    tail, peak = float(f[t > t_release].max()), float(f[t > t_release + CONTROL_S].max())
+    after = t > t_release + CONTROL_S
+    tail, peak = float(f[t > t_release].max()), float(f[after].max())
+    t_peak = float(t[after][np.argmax(f[after])] - t_release)
     print(f'freeze in an approach: contact {t[np.argmax(back)] - t_release:.3f} s after '
-          f"SIGCONT, the fall's tail {tail:.2f} N, then peak {peak:.2f} N" if back.any()
-          else 'no contact')
+          f"SIGCONT, the fall's tail {tail:.2f} N, then peak {peak:.2f} N at {t_peak:.3f} s"
+          if back.any() else 'no contact')
     report_figure(current_test(), contact_back_s=(float(t[np.argmax(back)] - t_release)
                                                   if back.any() else None),
-                  tail_force_n=tail, peak_force_n=peak)
+                  tail_force_n=tail, peak_force_n=peak, peak_after_s=t_peak)
     assert back.any() and t[np.argmax(back)] - t_release <= 2.5
     end = (t > t_release + 2.5) & (t <= t_release + 3.0)
     assert end.any() and np.all(f[end] > 0.1), (  # on the surface at the end, not bounced off

@@ -23,7 +23,8 @@ The names are resolved here (remappings included) and the control thread's node 
 as they are. QoS: :mod:`.qos`. ``/diagnostics`` (1 Hz) adds the input-to-command delay
 (joint-state stamp to effort published), the tick period, the commands/s and how long each
 kind of callback held the control thread (``loop_hold_max_ms``, ``hold_*``). A flight recorder
-keeps the loop's last 2 s and writes them to ``flight_recorder_dir`` on a fault (flight_dumps.py).
+keeps the loop's last 2 s and, on a fault, writes them to ``flight_recorder_dir``: 1.5 s before
+the fault and 0.5 s after it (flight_dumps.py).
 """
 from __future__ import annotations
 
@@ -253,11 +254,12 @@ class ControllerNode(LifecycleNode):
         return _OK
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        recorder = None if self.loop is None else self.loop.recorder
         if self.loop is not None:
             self.loop.stop()
             self.loop = None
-        if self.flight is not None:  # a dump being written finishes (its path is logged)
-            self.flight.join()
+        if self.flight is not None:  # a pending dump starts, one being written finishes
+            self.flight.join(recorder=recorder)
             self.flight = None
         if self.task is not None:
             self.task.destroy()
@@ -290,11 +292,12 @@ class ControllerNode(LifecycleNode):
 
     def destroy_node(self) -> None:
         """Stop the control thread first (a node destroyed without a shutdown transition)."""
+        recorder = None if self.loop is None else self.loop.recorder
         if self.loop is not None:
             self.loop.stop()
             self.loop = None
-        if self.flight is not None:  # a dump being written finishes (its path is logged)
-            self.flight.join()
+        if self.flight is not None:  # a pending dump starts, one being written finishes
+            self.flight.join(recorder=recorder)
         super().destroy_node()
 
     # ------------------------------------------------------------------ callbacks

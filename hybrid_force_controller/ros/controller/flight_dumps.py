@@ -5,7 +5,8 @@ The control thread's :class:`~hybrid_force_controller.core.runtime.flight_record
 only appends ``(reason, t)`` to its ``requests`` when a tick triggers (safe mode, a force above
 ``flight_recorder_max_force``, contact lost in the force loop, a stall). :meth:`FlightDumps.poll`
 runs on the node's thread (its housekeeping, every 100 ms): it takes the requests, copies the
-ring (:meth:`FlightRecorder.snapshot`) and hands the dump to a thread of its own at normal
+ring (:meth:`FlightRecorder.snapshot`) :data:`AFTER_S` (0.5 s) after the first, so a dump shows
+what followed the fault as well as what led to it, and hands it to a thread of its own at normal
 priority, which saves the copy as an ``.npz`` file (a few ms, mostly I/O) and runs the bag's
 writing (tools/flight_log.py, 0.3-0.5 s of Python for 2000 ticks, and about 1 s to import
 rosbags) in a process of its own, at the ordinary scheduling policy, and waits for it. So no
@@ -38,9 +39,10 @@ from ...core.runtime.flight_recorder import FlightRecorder, FlightSnapshot
 from ...tools.bag_io import BagError
 from ...tools.flight_log import flight_log_path, save_snapshot
 
-__all__ = ['FlightDumps', 'MIN_INTERVAL_S']
+__all__ = ['AFTER_S', 'FlightDumps', 'MIN_INTERVAL_S']
 
 MIN_INTERVAL_S = 5.0  # at most one dump this often (no dump storm)
+AFTER_S = 0.5  # a dump's ring is copied this long after its first trigger (what followed)
 MAX_DUMPS = 100  # and at most this many per node
 _COUNT = itertools.count()  # the dumps of this process (two nodes' names never collide)
 JOIN_S = 10.0  # a node that ends waits this long for a dump being written
@@ -82,15 +84,21 @@ class FlightDumps:
         At most this many dumps in the object's life.
     clock : callable
         Monotonic seconds (``time.monotonic``; the node's wall clock, also with sim time).
+    after_s : float
+        The ring is copied this long (``clock``'s seconds) after the dump's first request,
+        so that the dump shows what followed the trigger as well as what led to it (with
+        2000 ticks at 1 kHz: 1.5 s before, 0.5 s after). Requests in that time join it.
 
     """
 
     def __init__(self, directory: str | Path, model: Any, log: Callable[[str], Any],
                  min_interval_s: float = MIN_INTERVAL_S, max_dumps: int = MAX_DUMPS,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, after_s: float = AFTER_S) -> None:
         self.directory, self._log = Path(directory), log
         self._names = (tuple(model.joint_names), tuple(model.theta_names), model.base_link)
         self.min_interval_s, self.max_dumps, self._clock = min_interval_s, max_dumps, clock
+        self.after_s = after_s
+        self._pending: tuple[list[str], float, float] | None = None  # reasons, t, copy at
         self._last = -math.inf
         self.dumps = 0  # dumps started
         self.skipped = 0  # requests dropped: within min_interval_s of a dump, or past the cap
@@ -99,26 +107,33 @@ class FlightDumps:
 
     def poll(self, recorder: FlightRecorder) -> None:
         """
-        Start a dump for the pending requests (when allowed); log the dumps written since.
+        Take the requests; copy the ring and start its dump ``after_s`` after the first.
 
         The requests taken together make one dump: their reasons joined, the first's time.
+        A request within ``min_interval_s`` of the last dump, or past ``max_dumps``, is
+        dropped and counted.
         """
-        reasons, t_first = [], math.nan
+        now = self._clock()
         while recorder.requests:
             reason, t = recorder.requests.popleft()
-            if not reasons:
-                t_first = t
-            if reason not in reasons:
-                reasons.append(reason)
-        if reasons:
-            now = self._clock()
-            if now - self._last < self.min_interval_s or self.dumps >= self.max_dumps:
-                self.skipped += len(reasons)
+            if self._pending is not None:
+                if reason not in self._pending[0]:
+                    self._pending[0].append(reason)
+            elif now - self._last < self.min_interval_s or self.dumps >= self.max_dumps:
+                self.skipped += 1
             else:
                 self._last = now
-                self._start(recorder.snapshot(), '; '.join(reasons), t_first)
+                self._pending = ([reason], t, now + self.after_s)
+        self._dump_pending(recorder, now)
         while self._done:
             self._log(self._done.popleft())
+
+    def _dump_pending(self, recorder: FlightRecorder, now: float | None) -> None:
+        """Start the pending dump once its time has come (``now`` None: at once)."""
+        if self._pending is not None and (now is None or now >= self._pending[2]):
+            reasons, t, _ = self._pending
+            self._pending = None
+            self._start(recorder.snapshot(), '; '.join(reasons), t)
 
     def _start(self, snap: FlightSnapshot, reason: str, t: float) -> None:
         tag = f'{os.getpid()}_{next(_COUNT):03d}'
@@ -155,8 +170,14 @@ class FlightDumps:
             self._done.append(f'flight recorder: {reason} at t={t:.3f}: could not write '
                               f'{path}: {exc}')
 
-    def join(self, timeout: float = JOIN_S) -> None:
-        """Wait for the dumps being written (the node ends) and log them."""
+    def join(self, timeout: float = JOIN_S, recorder: FlightRecorder | None = None) -> None:
+        """
+        Wait for the dumps being written (the node ends) and log them.
+
+        With ``recorder``, a pending dump is started first (its ring as it is now).
+        """
+        if recorder is not None:
+            self._dump_pending(recorder, None)
         deadline = time.monotonic() + timeout
         for writer in self._writers:
             writer.join(max(0.0, deadline - time.monotonic()))

@@ -1,0 +1,98 @@
+"""
+The real-time tests' bounds, set from what was measured on the halved machine (issue 31).
+
+``test/realtime_bounds.json`` holds, for each real-time test (its pytest node id) and each
+figure it bounds, the worst of the measured runs and the bound, ``multiple`` times that worst.
+The runs are the tests themselves under ``taskset -c 0`` (one CPU: this machine halved), each
+handing its figures on with :func:`helpers.figures.report_figure` (``HFC_FIGURES=FILE``). A
+figure whose worst was 0 (no contact lost in any run) is bounded at 0: any loss fails.
+
+* :func:`bound`: the bound of one figure of one test, for the test's own ``assert``;
+* ``python -m helpers.bounds FIGURES.jsonl [--multiple M] [--write]`` (from test/): the worst of
+  each bounded figure over the runs in FIGURES and the bound it gives, beside the file's; with
+  ``--write`` the file takes them (a change of bounds is made on purpose, with its reason in the
+  commit). Which figures are bounded is the file's list: a new one is added by hand.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+import sys
+from typing import Any
+
+BOUNDS_FILE = Path(__file__).resolve().parents[1] / 'realtime_bounds.json'
+_CACHE: dict[str, Any] = {}
+
+
+def _table() -> dict[str, Any]:
+    if not _CACHE:
+        _CACHE.update(json.loads(BOUNDS_FILE.read_text()))
+    return _CACHE
+
+
+def bound(test: str, figure: str) -> float:
+    """
+    Return the bound of ``figure`` (``a.b`` for a figure nested in a dict) of ``test``.
+
+    ``test`` is the node id below ``test/`` as pytest names it (``test_x.py::test_y[p]``).
+    """
+    tests = _table()['bounds']
+    key = test.split('/')[-1] if '/' in test.split('::')[0] else test
+    if key not in tests or figure not in tests[key]:
+        raise KeyError(f'no measured bound for {figure!r} of {key!r} in {BOUNDS_FILE.name}')
+    return float(tests[key][figure]['bound'])
+
+
+def _flat(figures: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in figures.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f'{prefix}{k}.'))
+        else:
+            out[f'{prefix}{k}'] = v
+    return out
+
+
+def worst_of(lines: list[dict[str, Any]]) -> dict[str, dict[str, tuple[float, int]]]:
+    """Return ``{test: {figure: (worst, runs)}}``: the largest value of each figure and its count."""
+    out: dict[str, dict[str, tuple[float, int]]] = {}
+    for line in lines:
+        test = line.get('test', '').split('/')[-1]
+        for name, v in _flat({k: v for k, v in line.items() if k != 'test'}).items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                v = math.inf if v in ('nan', 'inf', None) else None  # a failed run is worst
+            if v is None:
+                continue
+            w, n = out.setdefault(test, {}).get(name, (-math.inf, 0))
+            out[test][name] = (max(w, float(v)), n + 1)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print (and with ``--write`` store) the bounds that FIGURES gives the file's figures."""
+    ap = argparse.ArgumentParser(prog='python -m helpers.bounds', description=main.__doc__)
+    ap.add_argument('figures', type=Path, help='the JSON lines of HFC_FIGURES')
+    ap.add_argument('--multiple', type=float, default=None, help="default: the file's")
+    ap.add_argument('--write', action='store_true', help='store the new bounds in the file')
+    args = ap.parse_args(argv)
+    table = json.loads(BOUNDS_FILE.read_text())
+    multiple = args.multiple or table['multiple']
+    lines = [json.loads(s) for s in args.figures.read_text().splitlines() if s.strip()]
+    worst = worst_of([line for line in lines if 'test' in line])
+    for test, figures in table['bounds'].items():
+        for name, entry in figures.items():
+            w, n = worst.get(test, {}).get(name, (math.nan, 0))
+            new = multiple * w
+            print(f'{test} {name}: worst {w:.4g} of {n} runs -> {new:.4g} (now {entry["bound"]:.4g})')
+            if args.write and n:
+                entry.update(worst=w, runs=n, bound=new)
+    if args.write:
+        table['multiple'] = multiple
+        BOUNDS_FILE.write_text(json.dumps(table, indent=1) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -160,6 +160,8 @@ def test_the_wipe_task_tares_and_follows_the_users_path(tmp_path):
     metrics = json.loads((tmp_path / 'report' / 'metrics.json').read_text())
     assert metrics['task'] == 'wipe' and metrics['tared'] is True
     assert metrics['path_window'] == 'path running'
+    report_figure(current_test(), **{k: metrics.get(k) for k in (
+        'rms_path_error_m', 'max_path_error_m', 'rms_force_error_n', 'contact_lost_s')})
     assert metrics['rms_path_error_m'] <= 3e-3 and metrics['max_path_error_m'] <= 9e-3
     assert metrics['rms_force_error_n'] <= 0.3 and metrics['contact_lost_s'] <= 0.3
 

@@ -62,6 +62,10 @@ def rig(tmp_path_factory):
 def _set(rig, **values):
     from rclpy.parameter import Parameter
     params = [Parameter(k, value=v) for k, v in values.items()]
+    # a request sent before the client has matched the gateway's service is lost, not queued:
+    # the services' endpoints are discovered after the node's name (seen on one CPU)
+    wait_for(lambda: rig.params.services_are_ready(), "the gateway's parameter services",
+             alive=rig.procs)
     return wait_future(rig.params.set_parameters(params)).results
 
 
@@ -69,14 +73,19 @@ def test_the_gateway_shows_the_cell_on_the_users_domain(rig):
     node = rig.log.node
     wait_for(lambda: {('hybrid_force_controller', '/'), ('sim', '/')}
              <= set(node.get_node_names_and_namespaces()), 'the cell nodes on the user domain')
+    # the endpoints are discovered after the nodes' names (seconds apart on one CPU)
+    wait_for(lambda: node.get_publishers_info_by_topic('/effort_controller/commands'),
+             "the gateway's mirror of the efforts", alive=rig.procs)
     writers = node.get_publishers_info_by_topic('/effort_controller/commands')
-    assert writers and {w.node_name for w in writers} == {GATEWAY}, writers
+    assert {w.node_name for w in writers} == {GATEWAY}, writers
     assert not any(i.node_name == GATEWAY
                    for i in node.get_subscriptions_info_by_topic('/joint_states'))
     with Spun(cell_domains(rig.sim.env).cell) as cell:
         probe = cell.node('cell_probe')
         wait_for(lambda: ('_hybrid_force_controller_rt', '/')
                  in probe.get_node_names_and_namespaces(), 'the loop node on the cell domain')
+        wait_for(lambda: probe.get_publishers_info_by_topic('/effort_controller/commands'),
+                 'the loop node writing the efforts on the cell domain', alive=rig.procs)
         cell_writers = probe.get_publishers_info_by_topic('/effort_controller/commands')
         assert {w.node_name for w in cell_writers} == {'_hybrid_force_controller_rt'}
 

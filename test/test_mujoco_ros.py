@@ -15,6 +15,7 @@ The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
 from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
+from helpers.bounds import check_bounds
 from helpers.figures import current_test, report_figure
 from helpers.ros import (CONTROLLER_MODULE, domain_id, NodeProcess, ROOT, SIM_MODULE, Spun,
                          wait_for, wait_future)
@@ -51,12 +52,10 @@ ARMS = {
               + ['-p', f'robot_description:={panda_urdf_path()}', '-p', 'tool_mass:=0.1',
                  '-r', f'__ns:={PANDA_NS}'], [0.0, 0.0, -1.0], 5.0),
 }
-# loose on purpose: about 10x the targets of the issue (measured: docs/results_mujoco.md)
-BOUNDS = {'paper': (5e-3, 0.5), 'paper_mu03': (10e-3, 1.0), 'panda': (10e-3, 1.0)}
-# contact lost after the first touch, s: none, but on the paper's arm with friction the start
-# blend drags the tool up to 0.17 m/s and the contact chatters for about 0.3-0.45 s (MuJoCo's
-# soft friction cone at speed; docs/results_mujoco.md), never after t = 5 s
-LOST_AFTER_TOUCH = {'paper': 0.05, 'paper_mu03': 1.0, 'panda': 0.05}
+# bounds: 5 times the worst of the measured runs (test/realtime_bounds.json): from 5 s on, the
+# position and force RMS and contact lost; after the first touch, contact lost (on the paper's
+# arm with friction the start blend drags the tool up to 0.17 m/s and the contact chatters for
+# about 0.3-0.45 s: MuJoCo's soft friction cone at speed, docs/results_mujoco.md)
 # the machine starved the plant at start-up (the controller's safe mode on stale joint states,
 # seen in 3 of 3 clean-clone runs on 2026-12-04, one arm each): the start-up window then only
 # has to come back (the paper's arm falls at zero effort during the sim's stall); the window
@@ -96,16 +95,14 @@ def test_closed_loop_in_real_time_on_mujoco(tmp_path, arm):
     print(arm, 'after touch', after_touch, 'from 5 s', whole)
     report_figure(current_test(), after_touch=after_touch, from_5_s=whole)
     tails = '\n'.join(p.tail(1500) for p in procs)
-    e_x, e_f = BOUNDS[arm]
     assert alive, tails
-    lost_ok = LOST_AFTER_STARVED_S if STARVED in tails else LOST_AFTER_TOUCH[arm]
-    if STARVED in tails:
-        print(f'{arm}: the plant was starved at start-up: contact lost allowed {lost_ok} s')
-    assert after_touch['contact_lost_s'] <= lost_ok, (after_touch, tails)
-    assert whole['contact_lost_s'] <= 0.05, (whole, tails)
-    assert whole['rms_position_error_m'] <= e_x, (whole, tails)
-    assert whole['rms_force_error_n'] <= e_f, (whole, tails)
     assert whole['samples'] >= MIN_SAMPLES, whole  # enough for an RMS (not a rate)
+    if STARVED in tails:
+        print(f'{arm}: the plant was starved at start-up: contact lost allowed '
+              f'{LOST_AFTER_STARVED_S} s after the first touch')
+        assert after_touch['contact_lost_s'] <= LOST_AFTER_STARVED_S, (after_touch, tails)
+    check_bounds({'after_touch': after_touch, 'from_5_s': whole}, tails,
+                 skip=('after_touch.contact_lost_s',) if STARVED in tails else ())
     assert_clean_run(ctrl, sim, run=log.statuses(CTRL_NAME))
 
 

@@ -19,6 +19,7 @@ import math
 import threading
 
 from geometry_msgs.msg import PointStamped, PoseStamped
+from helpers.bounds import check_bounds
 from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, stamp_s, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
@@ -183,10 +184,10 @@ def test_a_script_sends_a_path_waits_for_completion_and_the_tool_followed_it(rig
     err = np.abs(x - x_d)
     print(f'path error over DDS: RMS {np.sqrt(np.mean(err ** 2)) * 1e3:.4f} mm, '
           f'max {err.max() * 1e3:.4f} mm')
-    report_figure(current_test(), rms_path_error_m=float(np.sqrt(np.mean(err ** 2))),
-                  max_path_error_m=float(err.max()))
-    # the issue's targets are 1 mm RMS and 3 mm max (measured: 0.003-0.25 mm RMS); 3x here
-    assert np.sqrt(np.mean(err ** 2)) < 3e-3 and err.max() < 9e-3, user.events()
+    figures = {'rms_path_error_m': float(np.sqrt(np.mean(err ** 2))),
+               'max_path_error_m': float(err.max())}
+    report_figure(current_test(), **figures)
+    check_bounds(figures, user.events())  # 5x the worst measured (realtime_bounds.json)
     t_end, x_end = user.settled()  # and it holds the last point
     x, _ = followed(user, t_end - 0.3, t_end)
     assert abs(x_end - 1.0) < 1e-5 and np.abs(x - 1.0).max() < 1e-3, user.events()

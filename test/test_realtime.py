@@ -3,21 +3,22 @@ Closed loop in real time over real DDS (no lockstep): sim and controller on the 
 
 (a) the sim's link masses are 50 % off the URDF's (0.65 and 1.35 kg vs 1.3 and 0.9 kg), with
 a recorder process subscribed to every topic: contact is kept, the force stays bounded, the
-tool tracks the path within loose bounds and the run is clean (no callback error, no safe
+tool tracks the path within measured bounds and the run is clean (no callback error, no safe
 mode); (c) the controller process is frozen (SIGSTOP/SIGCONT by pid) for 30 ms a few times:
 the force comes back near f_d, no effort exceeds the limits and the process lives on. Plus the
 sim alone: it holds the arm still until the first command, and counts the late callbacks after
 its own process was frozen (the catch-up itself, period by period: test_sim_watchdog.py).
 
-The thresholds are loose on purpose (a loaded 2-core machine); nothing here asserts how fast
-this machine is: the figures are printed, handed on (helpers.figures.report_figure) and what
-``bench --ros`` reports. Times are message stamps (node clock = wall clock here); waits have a
-wall timeout that only guards against hangs.
+The bounds are 5 times the worst of the measured runs on one CPU (test/realtime_bounds.json,
+helpers.bounds); nothing here asserts how fast this machine is: the figures are printed, handed
+on (helpers.figures.report_figure) and what ``bench --ros`` reports. Times are message stamps
+(node clock = wall clock here); waits have a wall timeout that only guards against hangs.
 """
 from __future__ import annotations
 
 import time
 
+from helpers.bounds import check_bounds
 from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, freeze, NodeProcess, RECORDER_MODULE, SIM_MODULE, Spun, wait_for
 from helpers.watch import assert_clean_run, ForceLog, RealTimeRig
@@ -50,15 +51,14 @@ def _contact_and_tracking(rig: RealTimeRig, t0: float, t1: float) -> dict:
     figures = {'f_min': float(f.min()) if f.size else float('nan'),
                'f_max': float(f.max()) if f.size else float('nan'),
                'f_rms_err': float(np.sqrt(np.mean((f - F_D) ** 2))) if f.size else float('nan'),
+               'f_dev_max': float(np.abs(f - F_D).max()) if f.size else float('nan'),
                'x_rms_err': x_rms, 'max_effort': rig.log.max_effort(t0, t1),
                'force_samples': int(f.size), 'position_pairs': pairs}
     print('figures', figures)
     report_figure(current_test(), **figures)
     assert f.size >= MIN_SAMPLES and pairs >= MIN_SAMPLES, f'{figures}\n{rig.tails()}'
     assert figures['f_min'] > 0.0, f'contact lost: {figures}\n{rig.tails()}'
-    assert figures['f_max'] < 5.0 * F_D, f'force not bounded: {figures}\n{rig.tails()}'
-    assert figures['f_rms_err'] < 0.3, f'force far from f_d: {figures}\n{rig.tails()}'
-    assert figures['x_rms_err'] < 5e-3, f'tracking: {figures}\n{rig.tails()}'
+    check_bounds(figures, rig.tails())  # f_dev_max, f_rms_err, x_rms_err (realtime_bounds.json)
     assert figures['max_effort'] <= EFFORT_LIMIT, figures
     return figures
 
@@ -99,11 +99,13 @@ def test_controller_frozen_30_ms_recovers(tmp_path):
         rig.close()
     _, f = rig.log.forces(t1 + 1.0, t1 + 2.0)
     figures = {'f_min': float(f.min()), 'f_max': float(f.max()),
+               'f_dev_max': float(np.abs(f - F_D).max()) if f.size else float('nan'),
                'max_effort': rig.log.max_effort(), 'samples': int(f.size)}
     print('after the freezes', figures)
     report_figure(current_test(), **figures)
     assert alive, rig.tails()
-    assert f.size and np.all(np.abs(f - F_D) < 0.3), (figures, rig.tails())
+    assert f.size, rig.tails()
+    check_bounds(figures, rig.tails())  # f_dev_max: |f - f_d| 1-2 s after the last freeze
     assert figures['max_effort'] <= EFFORT_LIMIT, figures
     # a 30 ms freeze is shorter than state_timeout (0.1 s): nothing for safe mode to see
     assert_clean_run(ctrl, run=rig.log.statuses('hybrid_force_controller'))

@@ -7,16 +7,18 @@ watches them and injects faults. In order: a frozen force sensor (the sim's
 between the real ones, a 1 s phase of NaN and partial joint states between the real ones,
 and the surface dropping 3 cm (the sim's ``surface_point``). Each case asserts
 /diagnostics non-OK because of the fault, no effort beyond the limits, contact kept or
-regained, the force back within 0.05 N of f_d within 3 s of the fault's end (BACK_S), and the
-controller alive. Times are message stamps (the wall clock here); waits have a wall
-timeout that only guards against hangs; the figures are printed and handed on
-(helpers.figures), the exact ones go to docs/results.md.
+regained, the force back within 0.05 N of f_d after the fault's end, and the controller alive;
+the times back and the peaks within 5 times the worst measured (test/realtime_bounds.json).
+Times are message stamps (the wall clock here); waits have a wall timeout that only guards
+against hangs; the figures are printed and handed on (helpers.figures), the exact ones go to
+docs/results.md.
 """
 from __future__ import annotations
 
 import math
 
 from geometry_msgs.msg import WrenchStamped
+from helpers.bounds import check_bounds
 from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, wait_for, wait_future
 from helpers.watch import RealTimeRig
@@ -35,7 +37,6 @@ F_D, TOL = 1.0, 0.05
 # force loop is blind for state_timeout (0.1 s) before frozen readings count as stale, and a
 # fault early in the run, theta_hat still converging, let the force fall to 0.52 N then: 0 to
 # 1.58 s in 8 runs, <= 0.09 s with the sine off (docs/results.md). So the bound stays loose.
-BACK_S = 3.0
 EFFORT_LIMIT = 100.0  # N m, the bundled URDF's
 CTRL = 'hybrid_force_controller'
 P0 = RobotModel.from_urdf().kinematics(np.array([0.657, 0.913]), np.zeros(2)).p_W
@@ -126,10 +127,11 @@ def fault_case(rig: RealTimeRig, start, stop, duration: float, counter: str) -> 
     after = rig.log.statuses(CTRL, t1 + 0.05)[0]
     _, f_fault = rig.log.forces(t0, t1)
     figures = {'back_s': t_ok - t1, 'f_min': float(f_fault.min()), 'f_max': float(f_fault.max()),
+               'f_dev_max': float(np.abs(f_fault - F_D).max()),
                'max_effort': rig.log.max_effort(t0, t_ok), 'levels': [d['level'] for d in during]}
     print(f'{counter}: {figures}')
     report_figure(current_test(), **figures)
-    assert t_ok - t1 <= BACK_S, f'force back within {TOL} N only {t_ok - t1:.2f} s after'
+    check_bounds(figures, rig.tails())  # back_s, f_dev_max (realtime_bounds.json)
     assert any(d['level'] >= 1 for d in during), during
     assert after[counter] > before[counter], (counter, before, after)
     assert figures['max_effort'] <= EFFORT_LIMIT, figures
@@ -196,8 +198,7 @@ def test_surface_drop_of_3_cm(rig):
                'max_effort': rig.log.max_effort(t_drop, t_ok)}
     print(f'surface drop: {figures}')
     report_figure(current_test(), **figures)
-    assert f.max() > 0.1 and t_back - t_drop <= 2.0, f'back after {t_back - t_drop:.2f} s'
-    assert t_ok - t_back <= 2.0
-    assert peak <= 5.0 * F_D, f'impact peak {peak:.2f} N'
+    assert f.max() > 0.1, 'no contact after the drop'
+    check_bounds(figures, rig.tails())  # contact_back_s, settled_after_back_s, peak_force_n
     assert any(level >= 1 for level in levels), levels
     assert figures['max_effort'] <= EFFORT_LIMIT, figures

@@ -7,14 +7,15 @@ has held at f_d, the controller process is frozen (SIGSTOP, then SIGCONT) for 15
 500 ms, each longer than the watchdog, so the arm falls onto the surface each time; then,
 with the surface dropped 3 cm, it is frozen for 300 ms during the approach.
 
-Checks cover the whole run after each release, with thresholds loose enough never to flake
-on a loaded 2-core machine (about 3 times issue 16's targets); the exact figures are what
-``bench --ros --freezes 3 --freeze-ms MS`` reports (docs/results.md).
+Checks cover the whole run after each release, bounded at 5 times the worst of the measured
+runs on one CPU (test/realtime_bounds.json); the exact figures are what ``bench --ros
+--freezes 3 --freeze-ms MS`` reports (docs/results.md).
 """
 from __future__ import annotations
 
 import time
 
+from helpers.bounds import check_bounds
 from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, freeze, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
@@ -113,25 +114,30 @@ def test_every_freeze_drops_the_arm_on_the_plant_watchdog(run):
 
 @pytest.mark.parametrize('k', range(len(FREEZES_MS)), ids=[f'{m:.0f}ms' for m in FREEZES_MS])
 def test_the_force_comes_back_and_theta_hat_holds(run, k):
-    """Targets 1 s, 10 %, 0.05 N (issue 16); asserted at 3 s, 25 %, 0.15 N (a loaded machine)."""
+    """
+    Issue 16's targets are 1 s, 10 %, 0.05 N; bounded at 5x the worst measured.
+
+    back_s, theta_change and rms_force_error_n (realtime_bounds.json). The peak is the fall's
+    (the arm falls while the torque is off): it must be there, its size is the plant's.
+    """
     fig = _figures(run, k)
     assert fig['peak_force_n'] > 3.0, fig  # the arm fell while the torque was off
-    assert fig['back_s'] <= 3.0, fig
-    assert fig['theta_change'] <= 0.25, fig
-    assert fig['rms_force_error_n'] <= 0.15, fig
+    check_bounds(fig)
 
 
 def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     """
-    The surface dropped 3 cm; frozen 300 ms into the approach: in contact <= 2.5 s after.
+    The surface dropped 3 cm; frozen 300 ms into the approach: back in contact, on it at the end.
 
-    The controller's peak is bounded at PEAK_N: the largest true force from CONTROL_S after
-    SIGCONT, once it has left safe mode. Before that the force is the fall's: the arm fell
-    onto the surface at zero effort during the freeze (67 N at the impact), the release
-    meets the bounce's tail (34-50 N) and the safe hold keeps the arm where the bounce put
-    it until both inputs have been fresh for 50 ms: printed, not bounded. The bound is for
-    what the runtime did before docs/results.md section 16's fixes: 426-512 N at the effort
-    limits, or the arm flung off the surface (then the end of the window fails).
+    The time back in contact is bounded at 5 times the worst measured (realtime_bounds.json).
+    The controller's peak is bounded at PEAK_N (issue 30's target; 5 times the worst of the
+    42 runs of docs/results.md section 18, 33.7 N, would be looser): the largest true force
+    from CONTROL_S after SIGCONT, once it has left safe mode. Before that the force is the
+    fall's: the arm fell onto the surface at zero effort during the freeze (25-48 N), and the
+    safe hold keeps the arm where the bounce put it until both inputs have been fresh for
+    50 ms: printed, not bounded. The bound is for what the runtime did before docs/results.md
+    section 16's fixes: 426-512 N at the effort limits, or the arm flung off the surface (then
+    the end of the window fails).
     """
     rig = run['rig']
     t_drop, _, t_release = run['approach']
@@ -147,7 +153,8 @@ def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     report_figure(current_test(), contact_back_s=(float(t[np.argmax(back)] - t_release)
                                                   if back.any() else None),
                   tail_force_n=tail, peak_force_n=peak, peak_after_s=t_peak)
-    assert back.any() and t[np.argmax(back)] - t_release <= 2.5
+    assert back.any(), 'no contact after SIGCONT'
+    check_bounds({'contact_back_s': float(t[np.argmax(back)] - t_release)})
     end = (t > t_release + 2.5) & (t <= t_release + 3.0)
     assert end.any() and np.all(f[end] > 0.1), (  # on the surface at the end, not bounced off
         f'{f[end]} N at 2.5-3 s after SIGCONT; flight logs in {run["flight"]}')

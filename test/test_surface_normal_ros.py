@@ -17,6 +17,7 @@ import math
 import threading
 
 from geometry_msgs.msg import Vector3Stamped
+from helpers.bounds import check_bounds
 from helpers.figures import angle_deg, current_test, report_figure
 from helpers.ros import domain_id, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
@@ -62,7 +63,11 @@ class Normals:
 
 def test_the_published_normal_starts_told_and_turns_to_the_sims_plane(tmp_path):
     rig = RealTimeRig(tmp_path, domain_id('surface_normal_ros'),
-                      sim_args=['-p', f'surface_normal:={N_TRUE}'],
+                      # a sensor's noise (seeded): at rest a noise-free sim can read the same
+                      # bits for 0.1 s, the frozen-sensor check's safe mode (2 of 5 runs on one
+                      # CPU); a real sensor never does
+                      sim_args=['-p', f'surface_normal:={N_TRUE}', '-p', 'noise_sigma:=0.002',
+                                '-p', 'seed:=7'],
                       ctrl_args=['-p', 'n_estimation:=true', '-p', f'ref_center:={P0}',
                                  '-p', 'ref_amplitude:=[0.0, 0.0, 0.0]'])
     normals = Normals(rig)
@@ -93,7 +98,7 @@ def test_the_published_normal_starts_told_and_turns_to_the_sims_plane(tmp_path):
     assert frame == 'base_link', frame
     assert figures['resting_from_told_deg'] < 2.0, resting  # the told n while the tool rests
     assert figures['resting_from_true_deg'] > 15.0, (resting, true)  # so the test can fail
-    assert figures['latest_from_true_deg'] < NEAR_DEG, (latest, true)
+    check_bounds(figures, (latest, true))  # latest_from_true_deg: 5x the worst measured
     assert abs(np.linalg.norm(latest) - 1.0) < 1e-9
     assert diag['normal_estimation'] is True, diag
     assert diag['normal_state'] in ('sliding', 'at_rest'), diag

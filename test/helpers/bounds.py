@@ -7,7 +7,9 @@ The runs are the tests themselves under ``taskset -c 0`` (one CPU: this machine 
 handing its figures on with :func:`helpers.figures.report_figure` (``HFC_FIGURES=FILE``). A
 figure whose worst was 0 (no contact lost in any run) is bounded at 0: any loss fails.
 
-* :func:`bound`: the bound of one figure of one test, for the test's own ``assert``;
+* :func:`check_bounds`: assert that every figure the file bounds for the running test is within
+  its bound (the test hands all its figures; the file says which are bounded);
+* :func:`bound`: the bound of one figure of one test;
 * ``python -m helpers.bounds FIGURES.jsonl [--multiple M] [--write]`` (from test/): the worst of
   each bounded figure over the runs in FIGURES and the bound it gives, beside the file's; with
   ``--write`` the file takes them (a change of bounds is made on purpose, with its reason in the
@@ -21,6 +23,8 @@ import math
 from pathlib import Path
 import sys
 from typing import Any
+
+from .figures import current_test
 
 BOUNDS_FILE = Path(__file__).resolve().parents[1] / 'realtime_bounds.json'
 _CACHE: dict[str, Any] = {}
@@ -39,10 +43,47 @@ def bound(test: str, figure: str) -> float:
     ``test`` is the node id below ``test/`` as pytest names it (``test_x.py::test_y[p]``).
     """
     tests = _table()['bounds']
-    key = test.split('/')[-1] if '/' in test.split('::')[0] else test
+    key = _key(test)
     if key not in tests or figure not in tests[key]:
         raise KeyError(f'no measured bound for {figure!r} of {key!r} in {BOUNDS_FILE.name}')
     return float(tests[key][figure]['bound'])
+
+
+def check_bounds(figures: dict[str, Any], context: Any = '', test: str | None = None,
+                 skip: tuple[str, ...] = ()) -> None:
+    """
+    Assert that each figure the file bounds for ``test`` (default: the running one) is within.
+
+    ``figures`` may nest dicts (``a.b`` names) and need not hold all the test's bounded
+    figures (a test may check its figures in parts), but at least one: a name that matches
+    none fails. A bounded figure that is not a finite number fails too. ``skip``: bounded
+    figures not checked here (a test's own reason, said there). ``context`` is appended to the
+    failure's message (logs).
+    """
+    test = current_test() if test is None else test
+    key = _key(test)
+    tests = _table()['bounds']
+    if key not in tests:
+        raise KeyError(f'no measured bounds for {key!r} in {BOUNDS_FILE.name}')
+    flat, over = _flat(figures), []
+    names = [n for n in tests[key] if n in flat or n in skip]
+    assert names, f'none of {sorted(flat)} is bounded for {key!r} in {BOUNDS_FILE.name}'
+    for name in names:
+        entry = tests[key][name]
+        if name in skip:
+            continue
+        v = flat[name]
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or v > entry['bound']:
+            over.append(f"{name} = {v!r} > {entry['bound']:.4g} ({_table()['multiple']:g} x "
+                        f"the worst of {entry['runs']} runs, {entry['worst']:.4g})")
+    assert not over, '; '.join(over) + f'\nfigures: {figures}\n{context}'
+
+
+def _key(test: str) -> str:
+    """Return a node id from below test/ (``test_x.py::test_y[p]``)."""
+    path, sep, rest = test.partition('::')
+    return path.split('/')[-1] + sep + rest
 
 
 def _flat(figures: dict[str, Any], prefix: str = '') -> dict[str, Any]:
@@ -56,10 +97,10 @@ def _flat(figures: dict[str, Any], prefix: str = '') -> dict[str, Any]:
 
 
 def worst_of(lines: list[dict[str, Any]]) -> dict[str, dict[str, tuple[float, int]]]:
-    """Return ``{test: {figure: (worst, runs)}}``: the largest value of each figure and its count."""
+    """Return ``{test: {figure: (worst, runs)}}``: each figure's largest value, and its count."""
     out: dict[str, dict[str, tuple[float, int]]] = {}
     for line in lines:
-        test = line.get('test', '').split('/')[-1]
+        test = _key(line.get('test', ''))
         for name, v in _flat({k: v for k, v in line.items() if k != 'test'}).items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 v = math.inf if v in ('nan', 'inf', None) else None  # a failed run is worst
@@ -85,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
         for name, entry in figures.items():
             w, n = worst.get(test, {}).get(name, (math.nan, 0))
             new = multiple * w
-            print(f'{test} {name}: worst {w:.4g} of {n} runs -> {new:.4g} (now {entry["bound"]:.4g})')
+            print(f'{test} {name}: worst {w:.4g} of {n} runs -> {new:.4g} '
+                  f'(now {entry["bound"]:.4g})')
             if args.write and n:
                 entry.update(worst=w, runs=n, bound=new)
     if args.write:

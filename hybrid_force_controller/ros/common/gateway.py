@@ -26,9 +26,9 @@ participant. Every
 Messages pass as serialized bytes (no conversion). The scan runs on the user side's thread;
 what it changes on the cell's node (the mirrors' subscriptions, the services' clients) it hands
 to the cell side's thread, which makes the change between two of its spins: an entity made on
-one thread while the other's executor waited on that node crashed the process (a segfault in
-``create_subscription``, once on two CPUs, in 3 of 4 runs of test_gateway on one CPU). The
-gateway ends on SIGINT/SIGTERM, or
+one thread while the other's executor waited on that node crashed the process once (a
+segfault in ``create_subscription``, docs/results.md section 17). The gateway ends on
+SIGINT/SIGTERM, or
 ``IDLE_EXIT_S`` after the last process of the cell has ended (:class:`Members`).
 """
 from __future__ import annotations

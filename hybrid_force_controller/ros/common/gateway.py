@@ -27,7 +27,7 @@ Messages pass as serialized bytes (no conversion). The scan runs on the user sid
 what it changes on the cell's node (the mirrors' subscriptions, the services' clients) it hands
 to the cell side's thread, which makes the change between two of its spins: an entity made on
 one thread while the other's executor waited on that node crashed the process once (a
-segfault in ``create_subscription``, docs/results.md section 17). The gateway ends on
+segfault in ``create_subscription``, docs/results.md section 19). The gateway ends on
 SIGINT/SIGTERM, or
 ``IDLE_EXIT_S`` after the last process of the cell has ended (:class:`Members`).
 """

@@ -17,7 +17,6 @@ import math
 import threading
 
 from geometry_msgs.msg import Vector3Stamped
-from helpers.bounds import check_bounds
 from helpers.figures import angle_deg, current_test, report_figure
 from helpers.ros import domain_id, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
@@ -98,7 +97,9 @@ def test_the_published_normal_starts_told_and_turns_to_the_sims_plane(tmp_path):
     assert frame == 'base_link', frame
     assert figures['resting_from_told_deg'] < 2.0, resting  # the told n while the tool rests
     assert figures['resting_from_true_deg'] > 15.0, (resting, true)  # so the test can fail
-    check_bounds(figures, (latest, true))  # latest_from_true_deg: 5x the worst measured
+    # what the wait above waited for (within NEAR_DEG): 5 times the worst of 10 runs (4.99 deg)
+    # would be looser than that condition, so the condition is the bound
+    assert figures['latest_from_true_deg'] < NEAR_DEG, (latest, true)
     assert abs(np.linalg.norm(latest) - 1.0) < 1e-9
     assert diag['normal_estimation'] is True, diag
     assert diag['normal_state'] in ('sliding', 'at_rest'), diag

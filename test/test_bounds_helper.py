@@ -31,6 +31,7 @@ def test_figures_within_their_bounds_pass_and_one_over_fails_saying_which(table)
     with pytest.raises(AssertionError, match='inner.peak'):
         bounds.check_bounds({'inner': {'peak': 10.5}}, test=test)
     assert bounds.bound(test, 'inner.peak') == 10.0
+    assert bounds.bound(test + '@ros', 'rms') == 0.05  # the node id under xdist's loadgroup
 
 
 def test_not_a_number_fails_a_skip_is_not_checked_and_a_stray_name_fails(table):

@@ -24,6 +24,7 @@ import argparse
 import json
 import math
 from pathlib import Path
+import re
 import sys
 from typing import Any
 
@@ -85,9 +86,9 @@ def check_bounds(figures: dict[str, Any], context: Any = '', test: str | None = 
 
 
 def _key(test: str) -> str:
-    """Return a node id from below test/ (``test_x.py::test_y[p]``)."""
+    """Return a node id from below test/ (``test_x.py::test_y[p]``, without xdist's ``@group``)."""
     path, sep, rest = test.partition('::')
-    return path.split('/')[-1] + sep + rest
+    return path.split('/')[-1] + sep + re.sub(r'@\w+$', '', rest)
 
 
 def _flat(figures: dict[str, Any], prefix: str = '') -> dict[str, Any]:

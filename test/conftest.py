@@ -45,7 +45,7 @@ import helpers.ros  # noqa: E402,F401,I100  (fixes the run's base domain before 
 # offline module's test that starts a node says so with ``@pytest.mark.dds`` (test_any_arm):
 # it alone joins the serial group.
 OFFLINE_MODULES = {
-    'test_analysis', 'test_any_arm', 'test_cdr', 'test_cell_trial_figures',
+    'test_analysis', 'test_any_arm', 'test_bounds_helper', 'test_cdr', 'test_cell_trial_figures',
     'test_closed_loop_offline', 'test_control_law', 'test_engine',
     'test_filters_env', 'test_flake8', 'test_flight_recorder', 'test_force_target_and_tare',
     'test_input_plausibility',

@@ -1,7 +1,7 @@
 """
 The flight recorder in real time over DDS: a frozen sim puts the controller in safe mode.
 
-The sim (masses 50 % off) and the controller run on the wall clock (helpers.ros.RealTimeRig),
+The sim (masses 50 % off) and the controller run on the wall clock (helpers.watch.RealTimeRig),
 the controller's ``flight_recorder_dir`` in this test's directory. Once the force has settled
 at f_d, the sim's process is frozen (SIGSTOP) for 0.5 s: no joint state for longer than
 ``state_timeout``, so the controller enters safe mode, its control thread asks for a dump,
@@ -13,11 +13,10 @@ from __future__ import annotations
 
 from pathlib import Path
 import re
-import signal
-import threading
 import time
 
-from helpers.ros import domain_id, RealTimeRig, wait_for
+from helpers.ros import domain_id, freeze, wait_for
+from helpers.watch import RealTimeRig
 from hybrid_force_controller.core.runtime.flight_recorder import MODES
 from hybrid_force_controller.core.runtime.modes import Mode
 from hybrid_force_controller.tools.bag_io import load_run, TYPESTORE
@@ -57,12 +56,7 @@ def test_a_frozen_sim_leaves_a_flight_log_of_the_safe_mode(tmp_path):
         rig.start()
         wait_for(lambda: ready_to_dump(rig, seen), 'the force to settle, no dump for 6 s',
                  alive=rig.procs)
-        t_freeze = time.time()
-        rig.sim.signal(signal.SIGSTOP)
-        try:
-            threading.Event().wait(FREEZE_S)  # the fault itself
-        finally:
-            rig.sim.signal(signal.SIGCONT)
+        t_freeze, _ = freeze(rig.sim, FREEZE_S)
         wait_for(lambda: any(t >= t_freeze for _, t, _ in dumps(rig)),
                  'the flight recorder to log a dump of the freeze', alive=rig.procs)
     finally:

@@ -9,7 +9,8 @@ The cell domain and its gateway (ros/common/cell.py, ros/common/gateway.py; issu
   topics in; the cell's own writers never appear on the user's domain;
 * a user's ``joint_states`` on the user's domain never reaches the loop;
 * default-profile joiners that subscribe to every topic (as ``ros2 bag record -a``), one a
-  second, cause no command timeout at the plant (the sim's counter, over DDS).
+  second, cause no command timeout at the plant (the sim's counter, over DDS);
+* the run is clean: no callback error, no safe mode.
 """
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ import math
 import subprocess
 import sys
 
-from helpers.ros import domain_id, RealTimeRig, ROOT, Spun, wait_for, wait_future
+from helpers.figures import current_test, report_figure
+from helpers.ros import domain_id, ROOT, Spun, wait_for, wait_future
+from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
 from hybrid_force_controller.ros.programs.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
@@ -59,6 +62,10 @@ def rig(tmp_path_factory):
 def _set(rig, **values):
     from rclpy.parameter import Parameter
     params = [Parameter(k, value=v) for k, v in values.items()]
+    # a request sent before the client has matched the gateway's service is lost, not queued:
+    # the services' endpoints are discovered after the node's name (seen on one CPU)
+    wait_for(lambda: rig.params.services_are_ready(), "the gateway's parameter services",
+             alive=rig.procs)
     return wait_future(rig.params.set_parameters(params)).results
 
 
@@ -66,14 +73,19 @@ def test_the_gateway_shows_the_cell_on_the_users_domain(rig):
     node = rig.log.node
     wait_for(lambda: {('hybrid_force_controller', '/'), ('sim', '/')}
              <= set(node.get_node_names_and_namespaces()), 'the cell nodes on the user domain')
+    # the endpoints are discovered after the nodes' names (seconds apart on one CPU)
+    wait_for(lambda: node.get_publishers_info_by_topic('/effort_controller/commands'),
+             "the gateway's mirror of the efforts", alive=rig.procs)
     writers = node.get_publishers_info_by_topic('/effort_controller/commands')
-    assert writers and {w.node_name for w in writers} == {GATEWAY}, writers
+    assert {w.node_name for w in writers} == {GATEWAY}, writers
     assert not any(i.node_name == GATEWAY
                    for i in node.get_subscriptions_info_by_topic('/joint_states'))
     with Spun(cell_domains(rig.sim.env).cell) as cell:
         probe = cell.node('cell_probe')
         wait_for(lambda: ('_hybrid_force_controller_rt', '/')
                  in probe.get_node_names_and_namespaces(), 'the loop node on the cell domain')
+        wait_for(lambda: probe.get_publishers_info_by_topic('/effort_controller/commands'),
+                 'the loop node writing the efforts on the cell domain', alive=rig.procs)
         cell_writers = probe.get_publishers_info_by_topic('/effort_controller/commands')
         assert {w.node_name for w in cell_writers} == {'_hybrid_force_controller_rt'}
 
@@ -151,6 +163,17 @@ def test_default_profile_joiners_cause_no_command_timeout(rig):
                 p.kill()
                 p.wait()
     after = rig.log.fresh_diag('sim', alive=rig.procs)
+    report_figure(current_test(),
+                  command_timeouts=after['command_timeouts'] - before['command_timeouts'],
+                  commands=after['commands'] - before['commands'],
+                  command_gap_max_ms=after.get('command_gap_max_ms'))
     assert [p.returncode for p in procs] == [0] * 5
     assert after['command_timeouts'] == before['command_timeouts'], (before, after)
     assert after['commands'] > before['commands']
+
+
+def test_the_run_is_clean(rig):
+    """Last: a user's sets, NaN joint states and joiners on the user domain left no error."""
+    assert_clean_run(rig.log.fresh_diag('hybrid_force_controller', alive=rig.procs),
+                     rig.log.fresh_diag('sim', alive=rig.procs),
+                     run=rig.log.statuses('hybrid_force_controller'))

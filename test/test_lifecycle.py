@@ -6,13 +6,15 @@ set (and are validated) in every state; configure -> activate starts commanding;
 deactivate stops it (the sim, like a ros2_control effort controller, holds the last
 command: ``command_timeout`` is long here); activate again resumes without an effort jump
 (the runtime restarts from the arm's position and velocity, and its effort blends from the
-held one); cleanup and shutdown are clean.
+held one), with no callback error and no safe mode; cleanup and shutdown are clean.
 """
 from __future__ import annotations
 
 import threading
 
-from helpers.ros import domain_id, ForceLog, NodeProcess, Spun, wait_for, wait_future
+from helpers.ros import (CONTROLLER_MODULE, domain_id, NodeProcess, SIM_MODULE, Spun, wait_for,
+                         wait_future)
+from helpers.watch import assert_clean_run, ForceLog
 from hybrid_force_controller.ros.common.cdr import read_float64_array
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -26,7 +28,6 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 
-CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 NAME = 'hybrid_force_controller'
 
 
@@ -85,13 +86,13 @@ class _Watcher(Node):
 def rig(tmp_path_factory):
     logs = tmp_path_factory.mktemp('lifecycle')
     domain = domain_id('lifecycle')
-    sim = NodeProcess('sim_node.sim_node', logs / 'sim.log', domain,  # masses 50 % off
+    sim = NodeProcess(SIM_MODULE, logs / 'sim.log', domain,  # masses 50 % off
                       ['-p', 'command_timeout:=60.0',  # holds the last command, like ros2_control
                        '-p', 'masses:=[0.65, 1.35]'])
     # a still reference: the effort the sim holds while inactive keeps the arm where it is
     # (with the sine, the held effort of a moving arm slides it along the frictionless surface,
     # and re-activation starts from wherever it got to)
-    ctrl = NodeProcess(CTRL, logs / 'controller.log', domain,
+    ctrl = NodeProcess(CONTROLLER_MODULE, logs / 'controller.log', domain,
                        ['-p', 'autostart:=false', '-p', 'ref_amplitude:=[0.0, 0.0, 0.0]'])
     spun = Spun(domain)
     try:
@@ -160,6 +161,8 @@ def test_transitions_over_the_lifecycle_services_without_effort_jump(rig):
     assert jump < 0.5, (tau_last, tau_first)  # efforts here are ~10-20 N m
     assert step < 2.0 * step_before + 0.2, (step, step_before)  # no transient beyond usual
     assert f_after.size > 50 and f_after.max() < 10.0, f_after.max()
+    assert_clean_run(w.force_log.fresh_diag(NAME, procs), w.force_log.fresh_diag('sim', procs),
+                     run=w.force_log.statuses(NAME))
     assert w.transition(Transition.TRANSITION_DEACTIVATE)
     assert w.transition(Transition.TRANSITION_CLEANUP)
     assert w.state() == 'unconfigured'

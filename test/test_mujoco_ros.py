@@ -7,14 +7,19 @@ The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
   (frictionless, and mu = 0.3) and the Panda (5 N on a table along a 10 cm line, mu = 0.3, sim
   masses +/-30 % off, a 0.1 kg tool the controller compensates): contact is kept after the first
   touch and the errors over the whole run after t = 5 s stay within loose bounds (a loaded 2-core
-  machine; docs/results_mujoco.md has the measured figures);
+  machine; docs/results_mujoco.md has the measured figures), and the run is clean (no callback
+  error, no safe mode);
 * bad settings (unknown physics, a zero tool radius, a zero surface normal) stop the sim at
   start-up with a clear error; at run time a stiffness the table top cannot take is refused.
 """
 from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
-from helpers.ros import domain_id, NodeProcess, ROOT, Spun, wait_for, wait_future
+from helpers.bounds import check_bounds
+from helpers.figures import current_test, report_figure
+from helpers.ros import (CONTROLLER_MODULE, domain_id, NodeProcess, ROOT, SIM_MODULE, Spun,
+                         wait_for, wait_future)
+from helpers.watch import assert_clean_run, ForceLog
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
 from hybrid_force_controller.ros.programs.tracking import TrackingMeter
@@ -25,9 +30,10 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 
-CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 CONFIG = ROOT / 'config'
 RUN_S = 7.0  # of stamps after the first 5 s (the metrics window)
+MIN_SAMPLES = 50
+CTRL_NAME = 'hybrid_force_controller'
 # The Panda runs under a robot's namespace, from the shipped files alone (keyed /**/node:, so
 # they apply to a namespaced node; a file keyed node: was skipped and the Panda ran on the
 # paper arm's joints)
@@ -46,12 +52,10 @@ ARMS = {
               + ['-p', f'robot_description:={panda_urdf_path()}', '-p', 'tool_mass:=0.1',
                  '-r', f'__ns:={PANDA_NS}'], [0.0, 0.0, -1.0], 5.0),
 }
-# loose on purpose: about 10x the targets of the issue (measured: docs/results_mujoco.md)
-BOUNDS = {'paper': (5e-3, 0.5), 'paper_mu03': (10e-3, 1.0), 'panda': (10e-3, 1.0)}
-# contact lost after the first touch, s: none, but on the paper's arm with friction the start
-# blend drags the tool up to 0.17 m/s and the contact chatters for about 0.3-0.45 s (MuJoCo's
-# soft friction cone at speed; docs/results_mujoco.md), never after t = 5 s
-LOST_AFTER_TOUCH = {'paper': 0.05, 'paper_mu03': 1.0, 'panda': 0.05}
+# bounds: 5 times the worst of the measured runs (test/realtime_bounds.json): from 5 s on, the
+# position and force RMS and contact lost; after the first touch, contact lost (on the paper's
+# arm with friction the start blend drags the tool up to 0.17 m/s and the contact chatters for
+# about 0.3-0.45 s: MuJoCo's soft friction cone at speed, docs/results_mujoco.md)
 # the machine starved the plant at start-up (the controller's safe mode on stale joint states,
 # seen in 3 of 3 clean-clone runs on 2026-12-04, one arm each): the start-up window then only
 # has to come back (the paper's arm falls at zero effort during the sim's stall); the window
@@ -68,11 +72,12 @@ def _node(module, tmp_path, name, domain, args):
 def test_closed_loop_in_real_time_on_mujoco(tmp_path, arm):
     args, n_W, f_d = ARMS[arm]
     domain = domain_id('mujoco_ros')
-    procs = [_node('sim_node.sim_node', tmp_path, 'sim', domain, args),
-             _node(CTRL, tmp_path, 'controller', domain, args)]
+    procs = [_node(SIM_MODULE, tmp_path, 'sim', domain, args),
+             _node(CONTROLLER_MODULE, tmp_path, 'controller', domain, args)]
     with Spun(domain) as spun:
         ns = PANDA_NS if arm == 'panda' else ''
         meter = TrackingMeter(spun.node('mujoco_watcher', ns), np.array(n_W), f_d)
+        log = ForceLog(spun, n_W, 'mujoco_status_watcher', namespace=ns)
         try:
             for p in procs:
                 p.start()
@@ -80,28 +85,30 @@ def test_closed_loop_in_real_time_on_mujoco(tmp_path, arm):
             t_start = meter.latest
             wait_for(lambda: meter.latest >= t_start + 5.0 + RUN_S, f'{RUN_S} s of run',
                      alive=procs)
-            assert all(p.alive for p in procs)
+            ctrl, sim = log.fresh_diag(CTRL_NAME, procs), log.fresh_diag('sim', procs)
+            alive = all(p.alive for p in procs)
         finally:
             for p in procs:
                 p.stop()
     after_touch = meter.figures(t_start + 1.0, meter.latest)  # first touch: within 1 s
     whole = meter.figures(t_start + 5.0, meter.latest)
     print(arm, 'after touch', after_touch, 'from 5 s', whole)
+    report_figure(current_test(), after_touch=after_touch, from_5_s=whole)
     tails = '\n'.join(p.tail(1500) for p in procs)
-    e_x, e_f = BOUNDS[arm]
-    lost_ok = LOST_AFTER_STARVED_S if STARVED in tails else LOST_AFTER_TOUCH[arm]
+    assert alive, tails
+    assert whole['samples'] >= MIN_SAMPLES, whole  # enough for an RMS (not a rate)
     if STARVED in tails:
-        print(f'{arm}: the plant was starved at start-up: contact lost allowed {lost_ok} s')
-    assert after_touch['contact_lost_s'] <= lost_ok, (after_touch, tails)
-    assert whole['contact_lost_s'] <= 0.05, (whole, tails)
-    assert whole['rms_position_error_m'] <= e_x, (whole, tails)
-    assert whole['rms_force_error_n'] <= e_f, (whole, tails)
-    assert whole['samples'] > 0.5 * RUN_S * 100, whole
+        print(f'{arm}: the plant was starved at start-up: contact lost allowed '
+              f'{LOST_AFTER_STARVED_S} s after the first touch')
+        assert after_touch['contact_lost_s'] <= LOST_AFTER_STARVED_S, (after_touch, tails)
+    check_bounds({'after_touch': after_touch, 'from_5_s': whole}, tails,
+                 skip=('after_touch.contact_lost_s',) if STARVED in tails else ())
+    assert_clean_run(ctrl, sim, run=log.statuses(CTRL_NAME))
 
 
 def test_wrist_wrench_reads_the_tool_weight_in_the_end_effector_frame(tmp_path):
     domain = domain_id('mujoco_ros')
-    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain,
+    sim = _node(SIM_MODULE, tmp_path, 'sim', domain,
                 _files('params.yaml', 'mujoco.yaml') + ['-p', 'tool_mass:=0.25'])
     got: dict[str, object] = {}
     with Spun(domain) as spun:
@@ -127,7 +134,7 @@ def test_wrist_wrench_reads_the_tool_weight_in_the_end_effector_frame(tmp_path):
     ('surface_normal:=[0.0, 0.0, 0.0]', 'surface_normal'),
 ])
 def test_bad_settings_stop_the_sim_at_start_up(tmp_path, override, words):
-    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain_id('mujoco_ros'),
+    sim = _node(SIM_MODULE, tmp_path, 'sim', domain_id('mujoco_ros'),
                 _files('params.yaml', 'mujoco.yaml') + ['-p', override])
     log = sim.refused_at_start_up()
     assert 'invalid configuration' in log and words in log, log
@@ -135,7 +142,7 @@ def test_bad_settings_stop_the_sim_at_start_up(tmp_path, override, words):
 
 def test_run_time_stiffness_is_bounded_by_the_table_top(tmp_path):
     domain = domain_id('mujoco_ros')
-    sim = _node('sim_node.sim_node', tmp_path, 'sim', domain, _files('params.yaml', 'mujoco.yaml'))
+    sim = _node(SIM_MODULE, tmp_path, 'sim', domain, _files('params.yaml', 'mujoco.yaml'))
     with Spun(domain) as spun, sim:
         client = AsyncParameterClient(spun.node('param_client'), 'sim')
         wait_for(client.services_are_ready, 'the sim parameter services', alive=[sim])

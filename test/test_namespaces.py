@@ -4,60 +4,38 @@ Two arms side by side: a sim and a controller in ``/arm1``, another pair in ``/a
 Every topic is relative, so ``-r __ns:=/armN`` moves them all (only ``/diagnostics`` stays
 global). Checked over real DDS: the graph (who subscribes and publishes what), and that
 each pair closes its own loop (different ``f_d`` per arm, each sim's true force near its
-own controller's f_d), with nothing on the global topics.
+own controller's f_d), with nothing on the global topics, and both runs clean (no callback error,
+no safe mode).
 """
 from __future__ import annotations
 
-import threading
-
-from geometry_msgs.msg import WrenchStamped
-from helpers.ros import domain_id, NodeProcess, Spun, wait_for
+from helpers.ros import CONTROLLER_MODULE, domain_id, NodeProcess, SIM_MODULE, Spun, wait_for
+from helpers.watch import assert_clean_run, ForceLog
 import numpy as np
 import pytest
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 
 
-CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 F_D = {'/arm1': 1.0, '/arm2': 2.0}
-
-
-class _Forces(Node):
-    """True contact force of each arm's sim."""
-
-    def __init__(self, context) -> None:
-        super().__init__('namespace_watcher', context=context)
-        self.lock = threading.Lock()
-        self.force: dict[str, list[float]] = {ns: [] for ns in F_D}
-        for ns in F_D:
-            self.create_subscription(WrenchStamped, f'{ns}/sim/contact_wrench',
-                                     lambda m, ns=ns: self._on_force(ns, m), QoSProfile(depth=100))
-
-    def _on_force(self, ns: str, msg) -> None:
-        with self.lock:
-            self.force[ns].append(-msg.wrench.force.y)  # n = (0, -1, 0)
-
-    def recent(self, ns: str, k: int) -> np.ndarray:
-        with self.lock:
-            return np.array(self.force[ns][-k:])
 
 
 @pytest.fixture(scope='module')
 def two_arms(tmp_path_factory):
+    """Yield a force log per arm (in its namespace) and the four processes."""
     logs = tmp_path_factory.mktemp('namespaces')
     domain = domain_id('namespaces')
     procs = []
     for ns, f_d in F_D.items():
         remap = ['-r', f'__ns:={ns}']
-        procs.append(NodeProcess('sim_node.sim_node', logs / f'sim{ns[-1]}.log', domain, remap))
-        procs.append(NodeProcess(CTRL, logs / f'controller{ns[-1]}.log', domain,
+        procs.append(NodeProcess(SIM_MODULE, logs / f'sim{ns[-1]}.log', domain, remap))
+        procs.append(NodeProcess(CONTROLLER_MODULE, logs / f'controller{ns[-1]}.log', domain,
                                  [*remap, '-p', f'f_d:={f_d}']))
     spun = Spun(domain)
     try:
-        w = spun.add(_Forces(spun.context))
+        forces = {ns: ForceLog(spun, name='namespace_watcher', namespace=ns) for ns in F_D}
         for p in procs:
             p.start()
-        yield w, procs
+        yield forces, procs
     finally:
         for p in procs:
             p.stop()
@@ -71,7 +49,8 @@ def _endpoints(node: Node, topic: str, publishers: bool) -> set[str]:
 
 
 def test_namespace_moves_every_topic(two_arms):
-    w, procs = two_arms
+    forces, procs = two_arms
+    w = forces['/arm1'].node  # the graph is the same from any node
     for ns in F_D:
         ctrl, sim = f'{ns}/hybrid_force_controller', f'{ns}/sim'
         rt = f'{ns}/_hybrid_force_controller_rt'  # the control thread's node (1 kHz I/O)
@@ -94,8 +73,13 @@ def test_namespace_moves_every_topic(two_arms):
 
 
 def test_two_loops_run_side_by_side(two_arms):
-    w, procs = two_arms
+    forces, procs = two_arms
     for ns, f_d in F_D.items():
-        wait_for(lambda: len(w.recent(ns, 300)) == 300
-                 and np.all(np.abs(w.recent(ns, 300) - f_d) < 0.1),
-                 f'{ns}: 3 s of true force within 0.1 N of {f_d} N', alive=procs)
+        def within(log=forces[ns], f_d=f_d) -> bool:
+            f = log.recent(300)
+            return f.size == 300 and bool(np.all(np.abs(f - f_d) < 0.1))
+        wait_for(within, f'{ns}: 3 s of true force within 0.1 N of {f_d} N', alive=procs)
+    for ns, log in forces.items():  # each arm's own statuses, by the node's full name
+        assert_clean_run(log.fresh_diag(f'{ns}/hybrid_force_controller', procs),
+                         log.fresh_diag(f'{ns}/sim', procs),
+                         run=log.statuses(f'{ns}/hybrid_force_controller'))

@@ -3,90 +3,50 @@ Closed loop over real DDS: ``sim`` (lockstep, owns /clock) + controller (use_sim
 
 Both nodes run as subprocesses with ``--params-file config/params.yaml``; this process
 listens to ``/sim/contact_wrench`` (true contact force), ``/hybrid_force_controller/x``,
-``/hybrid_force_controller/x_desired`` and ``/clock`` and changes ``f_d`` through the
-parameter service. Lockstep makes the result independent of the machine's load.
+``/hybrid_force_controller/x_desired``, ``/clock`` and ``/diagnostics`` and changes ``f_d``
+through the parameter service. Lockstep makes the result independent of the machine's load;
+the run is clean (no callback error, no safe mode).
 """
-import threading
-
-from geometry_msgs.msg import PointStamped, WrenchStamped
-from helpers.ros import domain_id, NodeProcess, Spun, stamp_s, wait_for, wait_future
+from helpers.bounds import check_bounds
+from helpers.figures import current_test, report_figure
+from helpers.ros import (CONTROLLER_MODULE, domain_id, NodeProcess, SIM_MODULE, Spun, wait_for,
+                         wait_future)
+from helpers.watch import assert_clean_run, ForceLog
 import numpy as np
 import pytest
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from rclpy.qos import QoSProfile
-from rosgraph_msgs.msg import Clock
 
 
 WALL_TIMEOUT = 300.0
-N_W = np.array([0.0, -1.0, 0.0])  # config/params.yaml
-P_TANGENT = np.eye(3) - np.outer(N_W, N_W)
+RATE_HZ = 1000.0  # telemetry_rate_hz here: one sample a step
 
 
-class _Listener(Node):
-    """Collects (stamp, vector) series; ``clock`` is the latest /clock in seconds."""
-
-    def __init__(self, context):
-        super().__init__('closed_loop_listener', context=context)
-        self.clock = 0.0
-        self.lock = threading.Lock()  # the executor thread adds samples while the test reads
-        self.force, self.x, self.x_d = {}, {}, {}
-        qos = QoSProfile(depth=1000)
-        self.create_subscription(Clock, '/clock', self._on_clock, qos)
-        self.create_subscription(WrenchStamped, '/sim/contact_wrench', self._on_force, qos)
-        self.create_subscription(PointStamped, '/hybrid_force_controller/x',
-                                 lambda m: self._point(self.x, m), qos)
-        self.create_subscription(PointStamped, '/hybrid_force_controller/x_desired',
-                                 lambda m: self._point(self.x_d, m), qos)
-
-    def _on_clock(self, msg):
-        self.clock = max(self.clock, stamp_s(msg.clock))
-
-    def _on_force(self, msg):
-        f = msg.wrench.force
-        with self.lock:
-            self.force[stamp_s(msg.header.stamp)] = np.array([f.x, f.y, f.z])
-
-    def _point(self, store, msg):
-        with self.lock:
-            store[stamp_s(msg.header.stamp)] = np.array([msg.point.x, msg.point.y, msg.point.z])
-
-    def force_error_rms(self, t0, t1, f_d):
-        with self.lock:
-            force = list(self.force.items())
-        e = [N_W @ f - f_d for t, f in force if t0 <= t <= t1]
-        assert len(e) > 0.5 * (t1 - t0) * 1000, f'only {len(e)} force samples in [{t0}, {t1}]'
-        return float(np.sqrt(np.mean(np.square(e))))
-
-    def tangential_error_rms(self, t0, t1):
-        with self.lock:
-            x_d, x = dict(self.x_d), list(self.x.items())
-        e = [P_TANGENT @ (x_t - x_d[t]) for t, x_t in x if t0 <= t <= t1 and t in x_d]
-        assert len(e) > 0.5 * (t1 - t0) * 1000, f'only {len(e)} position pairs in [{t0}, {t1}]'
-        return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
+def _force_error_rms(log: ForceLog, t0: float, t1: float, f_d: float) -> float:
+    _, f = log.forces(t0, t1)
+    assert f.size > 0.5 * (t1 - t0) * RATE_HZ, f'only {f.size} force samples in [{t0}, {t1}]'
+    return float(np.sqrt(np.mean(np.square(f - f_d))))
 
 
 @pytest.fixture(scope='module')
 def loop(tmp_path_factory):
     logs = tmp_path_factory.mktemp('closed_loop')
     domain = domain_id('nodes_closed_loop')
-    full = ['-p', 'telemetry_rate_hz:=1000.0']  # every step: the test counts samples
-    procs = [NodeProcess('sim_node.sim_node', logs / 'sim.log', domain,
-                         ['-p', 'lockstep:=true', *full]),
-             NodeProcess('hybrid_force_controller.ros.controller.controller_node',
-                         logs / 'controller.log',
+    full = ['-p', f'telemetry_rate_hz:={RATE_HZ}']  # every step: the test counts samples
+    procs = [NodeProcess(SIM_MODULE, logs / 'sim.log', domain, ['-p', 'lockstep:=true', *full]),
+             NodeProcess(CONTROLLER_MODULE, logs / 'controller.log',
                          domain, ['-p', 'use_sim_time:=true', *full])]
     spun = Spun(domain)
-    listener = spun.add(_Listener(spun.context))
+    log = ForceLog(spun, name='closed_loop_listener', points=True, clock=True)
     try:
         for proc in procs:
             proc.start()
 
         def spin_until(condition, what):
-            wait_for(condition, f'{what} (sim time {listener.clock:.3f} s)', WALL_TIMEOUT, procs)
+            wait_for(condition, lambda: f'{what} (sim time {log.clock:.3f} s)', WALL_TIMEOUT,
+                     procs)
 
-        yield listener, spin_until
+        yield log, spin_until, procs
     finally:
         for proc in procs:
             proc.stop()
@@ -94,20 +54,31 @@ def loop(tmp_path_factory):
 
 
 def test_tracks_position_and_force(loop):
-    listener, spin_until = loop
-    spin_until(lambda: listener.clock >= 8.0, 'sim time 8 s')
-    t1 = min(listener.clock, 8.0)
-    assert listener.tangential_error_rms(5.0, t1) <= 0.5e-3
-    assert listener.force_error_rms(5.0, t1, 1.0) <= 0.05
+    log, spin_until, _ = loop
+    spin_until(lambda: log.clock >= 8.0, 'sim time 8 s')
+    t1 = min(log.clock, 8.0)
+    x_rms, pairs = log.tangential_rms(5.0, t1)
+    f_rms = _force_error_rms(log, 5.0, t1, 1.0)
+    report_figure(current_test(), rms_position_error_m=x_rms, rms_force_error_n=f_rms)
+    assert pairs > 0.5 * (t1 - 5.0) * RATE_HZ, f'only {pairs} position pairs in [5, {t1}]'
+    check_bounds({'rms_position_error_m': x_rms, 'rms_force_error_n': f_rms})
 
 
 def test_force_setpoint_change_through_parameter_service(loop):
-    listener, spin_until = loop
-    client = AsyncParameterClient(listener, 'hybrid_force_controller')
+    log, spin_until, _ = loop
+    client = AsyncParameterClient(log.node, 'hybrid_force_controller')
     spin_until(client.services_are_ready, 'the parameter services')
     result = wait_future(client.set_parameters([Parameter('f_d', value=2.0)]))
     assert result.results[0].successful, result.results[0].reason
-    t_change = listener.clock
-    spin_until(lambda: listener.clock >= t_change + 2.0, '2 s after the change')
-    t1 = listener.clock
-    assert listener.force_error_rms(t1 - 1.0, t1, 2.0) <= 0.05
+    t_change = log.clock
+    spin_until(lambda: log.clock >= t_change + 2.0, '2 s after the change')
+    t1 = log.clock
+    f_rms = _force_error_rms(log, t1 - 1.0, t1, 2.0)
+    report_figure(current_test(), rms_force_error_n=f_rms)
+    check_bounds({'rms_force_error_n': f_rms})
+
+
+def test_the_run_is_clean(loop):
+    log, _, procs = loop
+    ctrl = log.fresh_diag('hybrid_force_controller', procs)
+    assert_clean_run(ctrl, log.fresh_diag('sim', procs))

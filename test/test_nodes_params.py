@@ -6,9 +6,8 @@ The node runs in-process with its own context and domain; the tests talk to it w
 """
 import math
 from pathlib import Path
-import threading
 
-from helpers.ros import domain_id, Spun, wait_for
+from helpers.ros import domain_id, Spun, wait_for, wait_future
 from hybrid_force_controller.ros.controller.controller_node import ControllerNode
 import numpy as np
 import pytest
@@ -21,14 +20,6 @@ from sim_node.sim_node import SimNode
 DOMAIN_ID = domain_id('nodes_params')
 TIMEOUT = 30.0
 PARAMS_FILE = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
-
-
-def _wait(future):
-    """Return the result of a future completed by the background executor (or fail)."""
-    done = threading.Event()
-    future.add_done_callback(lambda _: done.set())
-    assert done.wait(TIMEOUT), 'no answer from the parameter service'
-    return future.result()
 
 
 def _running(make_nodes, args=None) -> Spun:
@@ -52,13 +43,13 @@ def controller():
 
 
 def _get(client, name):
-    return parameter_value_to_python(_wait(client.get_parameters([name])).values[0])
+    return parameter_value_to_python(wait_future(client.get_parameters([name])).values[0])
 
 
 def _set(client, **values):
     """Set each value on its own, like ``ros2 param set``; one result per value."""
     params = [Parameter(k, value=v) for k, v in values.items()]
-    return _wait(client.set_parameters(params)).results
+    return wait_future(client.set_parameters(params)).results
 
 
 def test_integer_is_accepted_as_double(controller):
@@ -128,7 +119,7 @@ def test_atomic_multi_set_with_one_bad_value_changes_nothing(controller):
     params_before = node.params
     bad = [Parameter('f_d', value=3.0), Parameter('lambda1', value=50.0),
            Parameter('k_d', value=-1.0)]
-    result = _wait(client.set_parameters_atomically(bad)).result
+    result = wait_future(client.set_parameters_atomically(bad)).result
     assert not result.successful and result.reason
     assert (_get(client, 'f_d'), _get(client, 'lambda1'), _get(client, 'k_d')) == (
         1.0, 40.0, 60.0)
@@ -139,11 +130,11 @@ def test_atomic_multi_set_is_validated_as_a_whole(controller):
     node, client = controller
     # lambda1 = 20 alone violates eq. (29) (400 <= 1200); with lambda2 = 0.01 it holds (400 > 120)
     good = [Parameter('lambda1', value=20), Parameter('lambda2', value=0.01)]
-    result = _wait(client.set_parameters_atomically(good)).result
+    result = wait_future(client.set_parameters_atomically(good)).result
     assert result.successful, result.reason
     assert (node.params.law.lambda1, node.params.law.lambda2) == (20.0, 0.01)
     restore = [Parameter('lambda2', value=0.1), Parameter('lambda1', value=40.0)]
-    assert _wait(client.set_parameters_atomically(restore)).result.successful
+    assert wait_future(client.set_parameters_atomically(restore)).result.successful
 
 
 def test_params_file_configures_both_nodes():
@@ -207,10 +198,10 @@ def test_dump_and_reload(controller, tmp_path):
     import yaml
     node, client = controller
     tared = [0.8, -2.5, 0.4]
-    result = _wait(client.set_parameters([Parameter('wrench_offset', value=tared)]))
+    result = wait_future(client.set_parameters([Parameter('wrench_offset', value=tared)]))
     assert result.results[0].successful, result.results[0].reason
-    names = _wait(client.list_parameters()).result.names
-    values = _wait(client.get_parameters(names)).values
+    names = wait_future(client.list_parameters()).result.names
+    values = wait_future(client.get_parameters(names)).values
     dumped = {n: parameter_value_to_python(v) for n, v in zip(names, values)}
     dumped = {n: (list(v) if isinstance(v, (list, tuple)) or hasattr(v, 'tolist') else v)
               for n, v in dumped.items()}
@@ -235,4 +226,4 @@ def test_dump_and_reload(controller, tmp_path):
         np.testing.assert_array_equal(b.runtime.wrench_offset, tared)
     finally:
         running.close()
-        _wait(client.set_parameters([Parameter('wrench_offset', value=[])]))
+        wait_future(client.set_parameters([Parameter('wrench_offset', value=[])]))

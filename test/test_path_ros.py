@@ -10,18 +10,19 @@ non-monotonic stamps, too fast, too many poses) is answered with its reason on
 ``~/path_status`` and the path goes on to its end; an empty path stops the motion; the markers
 arrive. Bounds are loose (the exact figures: docs/results.md): a stall of the loop on a loaded
 machine (the arm falls, the reference re-blends from it over ref_blend_time) is waited out, and
-the failure messages give the controller's /diagnostics counters; waits have a wall timeout that
-only guards against hangs.
+the failure messages give the controller's /diagnostics counters; the run is clean (no callback
+error, no safe mode); waits have a wall timeout that only guards against hangs.
 """
 from __future__ import annotations
 
 import math
 import threading
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, PoseStamped
-from helpers.ros import (CONTROLLER_MODULE, domain_id, MASSES_OFF, NodeProcess,
-                         parse_diagnostics, SIM_MODULE, Spun, stamp_s, wait_for, wait_future)
+from helpers.bounds import check_bounds
+from helpers.figures import current_test, report_figure
+from helpers.ros import domain_id, stamp_s, wait_for, wait_future
+from helpers.watch import assert_clean_run, RealTimeRig
 from nav_msgs.msg import Path
 import numpy as np
 import pytest
@@ -44,10 +45,10 @@ class _User(Node):
         self.lock = threading.Lock()
         self.status: list[str] = []
         self.progress: list[tuple[float, ...]] = []
+        self.progress_labels: set[tuple[str, ...]] = set()  # checked by the tests, not here
         self.x: list[tuple[float, float]] = []  # (stamp, x) of ~/x and ~/x_desired
         self.x_d: list[tuple[float, float]] = []
         self.markers: list[MarkerArray] = []
-        self.diag: dict = {}
         c = 'hybrid_force_controller/'
         self.pub = self.create_publisher(Path, c + 'path', 10)
         self.create_subscription(String, c + 'path_status', self._on_status, LATCHED)
@@ -58,16 +59,16 @@ class _User(Node):
         self.create_subscription(PointStamped, c + 'x_desired',
                                  lambda m: self._on_x(self.x_d, m), q)
         self.create_subscription(MarkerArray, c + 'markers', self._on_markers, 10)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(self, 'hybrid_force_controller')
+        self.rig: RealTimeRig | None = None
 
     def _on_status(self, msg) -> None:
         with self.lock:
             self.status.append(msg.data)
 
     def _on_progress(self, msg) -> None:
-        assert [d.label for d in msg.layout.dim] == ['fraction', 'time_left_s', 'path']
         with self.lock:
+            self.progress_labels.add(tuple(d.label for d in msg.layout.dim))
             self.progress.append(tuple(msg.data))
 
     def _on_x(self, store, msg) -> None:
@@ -78,15 +79,9 @@ class _User(Node):
         with self.lock:
             self.markers.append(msg)
 
-    def _on_diag(self, msg) -> None:
-        if msg.status and msg.status[0].hardware_id == 'hybrid_force_controller':
-            with self.lock:
-                self.diag = parse_diagnostics(msg)
-
     def events(self) -> str:
         """Return the controller's fault counters (for failure messages)."""
-        with self.lock:
-            d = dict(self.diag)
+        d = self.rig.log.diag('hybrid_force_controller')
         names = ('stalls', 'safe_mode_entries', 'approach_entries', 'mode')
         return ', '.join(f'{k} {d.get(k)}' for k in names)
 
@@ -149,23 +144,18 @@ class _User(Node):
 
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
-    logs, domain = tmp_path_factory.mktemp('path_ros'), domain_id('path_ros')
-    procs = [NodeProcess(SIM_MODULE, logs / 'sim.log', domain, list(MASSES_OFF)),
-             NodeProcess(CONTROLLER_MODULE, logs / 'controller.log', domain)]
-    spun = Spun(domain)
+    cell = RealTimeRig(tmp_path_factory.mktemp('path_ros'), domain_id('path_ros'))
     try:
-        user = spun.add(_User(spun.context))
-        user.procs = procs
-        for p in procs:
+        user = cell.spun.add(_User(cell.spun.context))
+        user.procs, user.rig = cell.procs, cell
+        for p in cell.procs:
             p.start()
         # as a script would: the controller is there (the latched status) and hears the path
         wait_for(lambda: user.status and user.pub.get_subscription_count() > 0 and user.x,
-                 'the controller to run and listen', alive=procs)
+                 'the controller to run and listen', alive=cell.procs)
         yield user
     finally:
-        for p in procs:
-            p.stop()
-        spun.close()
+        cell.close()
 
 
 def followed(user: _User, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
@@ -185,19 +175,22 @@ def test_a_script_sends_a_path_waits_for_completion_and_the_tool_followed_it(rig
     fraction, time_left, seq = user.wait_progress(seq0, 1.0, 'the path done')
     assert user.wait_status(k, lambda s: s == 'done', 'done', user.procs) == 'done'
     assert time_left == 0.0 and seq == seq0 + 1
+    assert user.progress_labels == {('fraction', 'time_left_s', 'path')}, user.progress_labels
     t_done = user.x[-1][0]
     wait_for(lambda: user.x[-1][0] > t_done + 0.5, 'x after the end', alive=user.procs)
     x, x_d = followed(user, t0, t_done + 0.5)
     # it traced the path (a stall re-blends the reference from the arm: loose)
     assert x_d.min() < 0.97 and x_d.max() > 1.03, user.events()
     err = np.abs(x - x_d)
-    # the issue's targets are 1 mm RMS and 3 mm max (measured: 0.003-0.25 mm RMS); 3x here
-    assert np.sqrt(np.mean(err ** 2)) < 3e-3 and err.max() < 9e-3, user.events()
+    print(f'path error over DDS: RMS {np.sqrt(np.mean(err ** 2)) * 1e3:.4f} mm, '
+          f'max {err.max() * 1e3:.4f} mm')
+    figures = {'rms_path_error_m': float(np.sqrt(np.mean(err ** 2))),
+               'max_path_error_m': float(err.max())}
+    report_figure(current_test(), **figures)
+    check_bounds(figures, user.events())  # 5x the worst measured (realtime_bounds.json)
     t_end, x_end = user.settled()  # and it holds the last point
     x, _ = followed(user, t_end - 0.3, t_end)
     assert abs(x_end - 1.0) < 1e-5 and np.abs(x - 1.0).max() < 1e-3, user.events()
-    print(f'path error over DDS: RMS {np.sqrt(np.mean(err ** 2)) * 1e3:.4f} mm, '
-          f'max {err.max() * 1e3:.4f} mm')
 
 
 REFUSALS = [  # (what is sent, words of the reason)
@@ -262,3 +255,10 @@ def test_markers_draw_the_path_reference_force_normal_and_plane(rig):
     a, b = normal.points
     assert (a.y - b.y) == pytest.approx(0.05, abs=1e-9)
     assert plane.type == plane.CUBE and plane.scale.z < plane.scale.x
+
+
+def test_the_run_is_clean(rig):
+    """Last: paths, refusals (answered on ~/path_status) and stops left no error behind."""
+    log = rig.rig.log
+    assert_clean_run(log.fresh_diag('hybrid_force_controller', rig.procs),
+                     log.fresh_diag('sim', rig.procs), run=log.statuses('hybrid_force_controller'))

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import threading
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
-from helpers.ros import domain_id, NodeProcess, parse_diagnostics, Spun, wait_for
+from helpers.ros import CONTROLLER_MODULE, domain_id, NodeProcess, Spun, wait_for
+from helpers.watch import assert_clean_run, ForceLog
 import pytest
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
@@ -21,24 +21,22 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 
-CTRL = 'hybrid_force_controller.ros.controller.controller_node'
+NAME = 'hybrid_force_controller'
 
 
 class _Robot(Node):
-    """Publishes a still arm (best effort) at 200 Hz; records commands and diagnostics."""
+    """Publishes a still arm (best effort) at 200 Hz; counts the commands."""
 
     def __init__(self, context) -> None:
         super().__init__('best_effort_robot', context=context)
         self.lock = threading.Lock()
         self.commands = 0
-        self.diag: dict = {}
         self.sent = 0
         self.pub_js = self.create_publisher(JointState, 'joint_states', qos_profile_sensor_data)
         self.pub_ft = self.create_publisher(
             WrenchStamped, 'force_torque_sensor_broadcaster/wrench', qos_profile_sensor_data)
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, QoSProfile(depth=100))
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.create_timer(0.005, self._publish)
 
     def _publish(self) -> None:
@@ -56,36 +54,35 @@ class _Robot(Node):
         with self.lock:
             self.commands += 1
 
-    def _on_diag(self, msg) -> None:
-        if msg.status[0].hardware_id == 'hybrid_force_controller':
-            with self.lock:
-                self.diag = parse_diagnostics(msg)
-
 
 @pytest.fixture
 def robot():
     with Spun(domain_id('qos')) as spun:
-        yield spun.add(_Robot(spun.context))
+        robot = spun.add(_Robot(spun.context))
+        robot.log = ForceLog(spun)  # the controller's /diagnostics
+        yield robot
 
 
 def test_best_effort_sensor_publishers_reach_the_controller(robot, tmp_path):
     assert robot.pub_js.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
-    with NodeProcess(CTRL, tmp_path / 'controller.log', domain_id('qos')) as ctrl:
+    with NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain_id('qos')) as ctrl:
         # a still arm with no force: the controller commands an approach (not 'waiting')
-        wait_for(lambda: robot.diag.get('mode') in ('approach', 'no_surface', 'running')
+        wait_for(lambda: robot.log.diag(NAME).get('mode') in ('approach', 'no_surface', 'running')
                  and robot.commands > 100, 'the controller commanding on best-effort inputs',
                  alive=[ctrl])
         assert robot.pub_js.get_subscription_count() == 1
         assert robot.pub_ft.get_subscription_count() == 1
+        assert_clean_run(robot.log.fresh_diag(NAME, [ctrl]), run=robot.log.statuses(NAME))
 
 
 def test_reliable_inputs_do_not_match_best_effort_publishers(robot, tmp_path):
     args = ['-p', 'sensor_qos:=reliable']
-    with NodeProcess(CTRL, tmp_path / 'controller.log', domain_id('qos'), args) as ctrl:
-        wait_for(lambda: robot.diag.get('lifecycle_state') == 'active', 'the controller active',
-                 alive=[ctrl])
+    ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain_id('qos'), args)
+    with ctrl:
+        wait_for(lambda: robot.log.diag(NAME).get('lifecycle_state') == 'active',
+                 'the controller active', alive=[ctrl])
         sent = robot.sent
         wait_for(lambda: robot.sent >= sent + 200, '1 s more of best-effort states', alive=[ctrl])
-        assert robot.diag.get('mode') in (None, 'waiting'), robot.diag
+        assert robot.log.diag(NAME).get('mode') in (None, 'waiting'), robot.log.diag(NAME)
         assert robot.commands == 0
         assert robot.pub_js.get_subscription_count() == 0  # incompatible QoS: no match

@@ -7,22 +7,23 @@ has held at f_d, the controller process is frozen (SIGSTOP, then SIGCONT) for 15
 500 ms, each longer than the watchdog, so the arm falls onto the surface each time; then,
 with the surface dropped 3 cm, it is frozen for 300 ms during the approach.
 
-Checks cover the whole run after each release, with thresholds loose enough never to flake
-on a loaded 2-core machine (about 3 times issue 16's targets); the exact figures are what
-``bench --ros --freezes 3 --freeze-ms MS`` reports (docs/results.md).
+Checks cover the whole run after each release, bounded at 5 times the worst of the measured
+runs on one CPU (test/realtime_bounds.json); the exact figures are what ``bench --ros
+--freezes 3 --freeze-ms MS`` reports (docs/results.md).
 """
 from __future__ import annotations
 
-import signal
 import time
 
-from helpers.ros import domain_id, RealTimeRig, wait_for, wait_future
+from helpers.bounds import check_bounds
+from helpers.figures import current_test, report_figure
+from helpers.ros import domain_id, freeze, wait_for, wait_future
+from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.tools.bag_io import load_run
 from hybrid_force_controller.tools.recovery_figures import recovery_figures, theta_steady
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
 
 
 FREEZES_MS = (150.0, 300.0, 500.0)
@@ -32,16 +33,7 @@ WINDOW_S = 6.0
 F_D = 1.0
 P0 = np.array([1.0, 1.6, 0.0])  # the tool at q0 (config/params.yaml), on the surface
 N_W = np.array([0.0, -1.0, 0.0])
-THETA_TRUE = np.array([0.65, 1.35])  # the sim's link masses (helpers.ros.MASSES_OFF)
-
-
-def _freeze(rig: RealTimeRig, ms: float) -> tuple[float, float]:
-    """SIGSTOP the controller for ``ms``; return the wall times of the stop and the release."""
-    t_stop = time.time()
-    rig.ctrl.signal(signal.SIGSTOP)
-    time.sleep(ms * 1e-3)  # the freeze itself (the stimulus), not a wait on a condition
-    rig.ctrl.signal(signal.SIGCONT)
-    return t_stop, time.time()
+THETA_TRUE = np.array([0.65, 1.35])  # the sim's link masses (helpers.watch.MASSES_OFF)
 
 
 def _diag(rig: RealTimeRig, name: str) -> dict:
@@ -78,10 +70,10 @@ def run(tmp_path_factory):
         for ms in FREEZES_MS:
             wait_for(lambda: rig.settled(F_D, hold_s=1.0), 'calm before the freeze',
                      alive=rig.procs)
-            freezes.append((ms, *_freeze(rig, ms)))
+            freezes.append((ms, *freeze(rig.ctrl, ms * 1e-3)))
             _run_past(rig, freezes[-1][2] + WINDOW_S + 0.2)
         sim1, ctrl1 = _diag(rig, 'sim'), _diag(rig, 'hybrid_force_controller')
-        drop = AsyncParameterClient(rig.log.node, 'sim').set_parameters(
+        drop = rig.sim_params.set_parameters(
             [Parameter('surface_point', value=(P0 + 0.03 * N_W).tolist())])
         assert wait_future(drop).results[0].successful
         t_drop = time.time()
@@ -89,7 +81,7 @@ def run(tmp_path_factory):
                  alive=rig.procs)
         wait_for(lambda: rig.log.latest_t() > t_drop + 0.4, 'into the approach',
                  alive=rig.procs)
-        approach = (t_drop, *_freeze(rig, 300.0))
+        approach = (t_drop, *freeze(rig.ctrl, 0.3))
         _run_past(rig, approach[2] + 3.0)
         yield {'rig': rig, 'freezes': freezes, 'sim0': sim0, 'sim1': sim1, 'ctrl1': ctrl1,
                'approach': approach, 'flight': tmp / 'flight'}
@@ -104,6 +96,7 @@ def _figures(run, k: int) -> dict:
     t_th, th = rig.log.thetas()
     fig = recovery_figures(t, f, t_stop, t_release, F_D, t_th, th, WINDOW_S)
     print(f'freeze {ms:.0f} ms: {fig}')
+    report_figure(current_test(), freeze_ms=ms, **fig)
     return fig
 
 
@@ -114,29 +107,37 @@ def test_every_freeze_drops_the_arm_on_the_plant_watchdog(run):
     assert run['ctrl1']['stalls'] >= len(FREEZES_MS)
     # trusted by then: the freezes held it, none was provisional; the sine stays off full reach
     assert run['ctrl1']['episode_provisional'] is False and run['ctrl1']['singular_ticks'] == 0
+    # a frozen controller may find its inputs stale when it resumes (safe mode): not counted
+    assert_clean_run(run['ctrl1'], run['sim1'], safe_mode_entries=None,
+                     run=run['rig'].log.statuses('hybrid_force_controller'))
 
 
 @pytest.mark.parametrize('k', range(len(FREEZES_MS)), ids=[f'{m:.0f}ms' for m in FREEZES_MS])
 def test_the_force_comes_back_and_theta_hat_holds(run, k):
-    """Targets 1 s, 10 %, 0.05 N (issue 16); asserted at 3 s, 25 %, 0.15 N (a loaded machine)."""
+    """
+    Issue 16's targets are 1 s, 10 %, 0.05 N; bounded at 5x the worst measured.
+
+    back_s, theta_change and rms_force_error_n (realtime_bounds.json). The peak is the fall's
+    (the arm falls while the torque is off): it must be there, its size is the plant's.
+    """
     fig = _figures(run, k)
     assert fig['peak_force_n'] > 3.0, fig  # the arm fell while the torque was off
-    assert fig['back_s'] <= 3.0, fig
-    assert fig['theta_change'] <= 0.25, fig
-    assert fig['rms_force_error_n'] <= 0.15, fig
+    check_bounds(fig)
 
 
 def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     """
-    The surface dropped 3 cm; frozen 300 ms into the approach: in contact <= 2.5 s after.
+    The surface dropped 3 cm; frozen 300 ms into the approach: back in contact, on it at the end.
 
-    The controller's peak is bounded at PEAK_N: the largest true force from CONTROL_S after
-    SIGCONT, once it has left safe mode. Before that the force is the fall's: the arm fell
-    onto the surface at zero effort during the freeze (67 N at the impact), the release
-    meets the bounce's tail (34-50 N) and the safe hold keeps the arm where the bounce put
-    it until both inputs have been fresh for 50 ms: printed, not bounded. The bound is for
-    what the runtime did before docs/results.md section 16's fixes: 426-512 N at the effort
-    limits, or the arm flung off the surface (then the end of the window fails).
+    The time back in contact is bounded at 5 times the worst measured (realtime_bounds.json).
+    The controller's peak is bounded at PEAK_N (issue 30's target; 5 times the worst of the
+    42 runs of docs/results.md section 18, 33.7 N, would be looser): the largest true force
+    from CONTROL_S after SIGCONT, once it has left safe mode. Before that the force is the
+    fall's: the arm fell onto the surface at zero effort during the freeze (25-48 N), and the
+    safe hold keeps the arm where the bounce put it until both inputs have been fresh for
+    50 ms: printed, not bounded. The bound is for what the runtime did before docs/results.md
+    section 16's fixes: 426-512 N at the effort limits, or the arm flung off the surface (then
+    the end of the window fails).
     """
     rig = run['rig']
     t_drop, _, t_release = run['approach']
@@ -149,7 +150,11 @@ def test_a_freeze_during_an_approach_ends_on_the_surface(run):
     print(f'freeze in an approach: contact {t[np.argmax(back)] - t_release:.3f} s after '
           f"SIGCONT, the fall's tail {tail:.2f} N, then peak {peak:.2f} N at {t_peak:.3f} s"
           if back.any() else 'no contact')
-    assert back.any() and t[np.argmax(back)] - t_release <= 2.5
+    report_figure(current_test(), contact_back_s=(float(t[np.argmax(back)] - t_release)
+                                                  if back.any() else None),
+                  tail_force_n=tail, peak_force_n=peak, peak_after_s=t_peak)
+    assert back.any(), 'no contact after SIGCONT'
+    check_bounds({'contact_back_s': float(t[np.argmax(back)] - t_release)})
     end = (t > t_release + 2.5) & (t <= t_release + 3.0)
     assert end.any() and np.all(f[end] > 0.1), (  # on the surface at the end, not bounced off
         f'{f[end]} N at 2.5-3 s after SIGCONT; flight logs in {run["flight"]}')

@@ -6,8 +6,8 @@ reason when nothing was given.
 """
 from __future__ import annotations
 
-from diagnostic_msgs.msg import DiagnosticArray
-from helpers.ros import domain_id, NodeProcess, parse_diagnostics, ROOT, Spun, wait_for
+from helpers.ros import CONTROLLER_MODULE, domain_id, NodeProcess, ROOT, Spun, wait_for
+from helpers.watch import ForceLog
 from hybrid_force_controller.core.config.params import ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import default_urdf_path
 from hybrid_force_controller.ros.common.qos import DESCRIPTION_QOS
@@ -17,26 +17,24 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String
 
 
-CTRL = 'hybrid_force_controller.ros.controller.controller_node'
 PANDA = ROOT / 'config' / 'panda_params.yaml'
 WAITING = "waiting for the URDF on '/r1/robot_description'"
 
 
 def test_waits_for_the_robot_description_topic_then_starts(tmp_path):
     domain = domain_id('robot_description')
-    ctrl = NodeProcess(CTRL, tmp_path / 'controller.log', domain,
+    ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain,
                        ['-r', '__ns:=/r1', '-p', 'use_bundled_model:=false'])
     with Spun(domain) as spun, ctrl:
         node = spun.node('description_publisher')
-        diags: list[dict] = []
-        node.create_subscription(DiagnosticArray, '/diagnostics',
-                                 lambda m: diags.append(parse_diagnostics(m)), 10)
+        log = ForceLog(spun)  # the controller's /diagnostics
         wait_for(lambda: WAITING in ctrl.log_since(), 'the waiting log line', alive=[ctrl])
-        assert diags == [] or diags[-1].get('lifecycle_state') == 'unconfigured'
+        state = log.diag('/r1/hybrid_force_controller').get('lifecycle_state', 'unconfigured')
+        assert state == 'unconfigured', state
         pub = node.create_publisher(String, '/r1/robot_description', DESCRIPTION_QOS)
         pub.publish(String(data=default_urdf_path().read_text()))
-        wait_for(lambda: diags and diags[-1].get('lifecycle_state') == 'active',
-                 'the controller active on the topic URDF', alive=[ctrl])
+        wait_for(lambda: log.diag('/r1/hybrid_force_controller').get('lifecycle_state')
+                 == 'active', 'the controller active on the topic URDF', alive=[ctrl])
     assert 'robot_description received' in ctrl.log_since()
 
 
@@ -57,8 +55,8 @@ def test_xacro_path_is_expanded(tmp_path):
 
 
 def test_panda_params_alone_say_that_robot_description_is_missing(tmp_path):
-    ctrl = NodeProcess(CTRL, tmp_path / 'controller.log', domain_id('robot_description'),
-                       params_file=PANDA)
+    ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log',
+                       domain_id('robot_description'), params_file=PANDA)
     with ctrl:
         wait_for(lambda: "waiting for the URDF on '/robot_description'" in ctrl.log_since(),
                  'the reason in the log', alive=[ctrl])

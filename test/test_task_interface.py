@@ -12,7 +12,8 @@ are refused with the reason, f_d unchanged and the arm pressing on.
 from __future__ import annotations
 
 from geometry_msgs.msg import WrenchStamped
-from helpers.ros import domain_id, MASSES_OFF, RealTimeRig, wait_for, wait_future
+from helpers.ros import domain_id, wait_for, wait_future
+from helpers.watch import MASSES_OFF, RealTimeRig
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 import numpy as np

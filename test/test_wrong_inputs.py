@@ -16,7 +16,8 @@ behind, the wrench 2 s ahead) and the loop tracks again.
 The controller keeps a burst of its inputs (``sensor_depth`` 10) so that a single injected
 message cannot be superseded by the sim's next one before the loop reads it. Times are the
 true force's stamps (the sim's wall clock); waits have a wall timeout against hangs only;
-the exact figures (five runs per case) are in docs/results.md (``wrong_inputs``).
+the exact figures (five runs per case) are in docs/results.md (``wrong_inputs``). The fuzz
+needs a CPU for this process beside the loop's and is skipped on one CPU.
 """
 from __future__ import annotations
 
@@ -24,7 +25,10 @@ import math
 import re
 import time
 
-from helpers.ros import domain_id, MASSES_OFF, RealTimeRig, wait_for
+from helpers.bounds import check_bounds
+from helpers.figures import current_test, needs_cpus, report_figure
+from helpers.ros import domain_id, wait_for
+from helpers.watch import MASSES_OFF, RealTimeRig
 from hybrid_force_controller.core.runtime.contact import in_contact
 from hybrid_force_controller.ros.programs.injector import Injector
 from hybrid_force_controller.ros.programs.tracking import TrackingMeter
@@ -35,8 +39,10 @@ import pytest
 CTRL = 'hybrid_force_controller'
 F_D = 1.0
 N_W = np.array([0.0, -1.0, 0.0])
-# about 3x the issue's targets: RMS force error 0.05 N, position 0.5 mm, peak 3 N
-RMS_F, RMS_X, PEAK_F = 0.15, 1.5e-3, 3.0 * 3.0
+# bounds: 5 times the worst of the measured runs (test/realtime_bounds.json): the force's RMS
+# error and peak after each message, the position's RMS error; the fuzz (skipped on one CPU,
+# so not measured there) keeps the issue's target for its peak
+FUZZ_PEAK_N = 3.0
 WINDOW_S = 1.5  # of true force checked after each single message
 
 
@@ -87,17 +93,25 @@ class Cell:
                  timeout=30.0)
         return self.rig.log.diag(CTRL)
 
-    def check_force(self, t0: float, t1: float, rms_f: float = RMS_F) -> np.ndarray:
+    def check_force(self, t0: float, t1: float, peak: float | None = None) -> np.ndarray:
         """
         Assert the true force over [t0, t1]: RMS error, peak, contact kept; return it.
+
+        ``peak``: bound the peak alone at that (N); None: the test's measured bounds.
 
         Times are the sim's stamps of the true force: the wall clock (``time.time()``).
         """
         wait_for(lambda: self.now >= t1, f'force up to {t1:.2f}', alive=self.rig.procs)
         _, f = self.rig.log.forces(t0, t1)
         assert f.size > 10
-        rms = float(np.sqrt(np.mean((f - F_D) ** 2)))
-        assert rms <= rms_f and f.max() <= PEAK_F, (rms, f.max())
+        figures = {'rms_force_error_n': float(np.sqrt(np.mean((f - F_D) ** 2))),
+                   'f_min': float(f.min()), 'f_max': float(f.max()), 'window_s': t1 - t0,
+                   'f_dev_max': float(np.abs(f - F_D).max())}
+        report_figure(current_test(), **figures)
+        if peak is None:
+            check_bounds(figures)  # rms_force_error_n, f_dev_max
+        else:
+            assert figures['f_max'] <= peak, figures
         assert all(in_contact(v) for v in f), f'contact lost: min {f.min():.3f} N'
         assert all(p.alive for p in self.rig.procs)
         return f
@@ -134,7 +148,8 @@ def test_sensor_clocks_off_for_the_whole_run_are_measured_and_the_loop_tracks(ce
     assert d['wrench_clock_offset_s'] == pytest.approx(-2.0, abs=0.02)
     assert d['joint_state_clock_implausible'] == d['wrench_clock_implausible'] == 0
     fig = cell.tracking.figures(t1 - 1.0, t1)
-    assert fig['rms_position_error_m'] <= RMS_X, fig
+    report_figure(current_test(), **fig)
+    check_bounds(fig)  # rms_position_error_m
     log = cell.rig.ctrl.log_since()  # one warning per stream
     assert log.count('joint state stamps are 2.0') + log.count('are 1.99') == 1, log[-3000:]
     assert log.count('wrench stamps are 2.0') == 1, log[-3000:]
@@ -167,13 +182,16 @@ def test_a_velocity_beyond_the_urdf_limit_is_refused(cell):
            "joint2's velocity")
 
 
+@needs_cpus(2, 'the injector publishes 500 messages/s from this process; on the CPU of the '
+            'loop it starves it (630-1010 N peaks in 2 of 3 runs under taskset -c 0)')
 def test_a_fuzz_of_1000_corrupted_messages_over_2_s(cell):
     """
     The CDR readers and the checks refuse what is wrong; force peak bounded, in contact.
 
     Corruptions within the plausibility bounds (a bit of a velocity, a force changing slower
     than wrench_rate_limit) are indistinguishable from real readings and reach the law: the
-    issue's target is the force peak (3 N), not its RMS.
+    issue's target is the force peak (3 N), not its RMS. Meaningful only with a CPU for the
+    injector beside the loop's (checked first: skipped on one CPU).
     """
     before = cell.diag()
     t0 = time.time()  # the sim stamps the true force with the wall clock
@@ -186,7 +204,7 @@ def test_a_fuzz_of_1000_corrupted_messages_over_2_s(cell):
                 for k in ('joint_states', 'wrench')}
     wait_for(lambda: min(errors(cell.rig.log.diag(CTRL)).values()) > 100,
              'the controller to refuse the fuzz', alive=cell.rig.procs)
-    f = cell.check_force(t0, t1 + 1.0, rms_f=math.inf)  # the issue's target: the peak
+    f = cell.check_force(t0, t1 + 1.0, peak=FUZZ_PEAK_N)  # the issue's target: the peak
     after = cell.diag()
     grew = {k: after[k] - before[k] for k in (
         'joint_state_dropped', 'joint_state_implausible', 'joint_state_clock_implausible',
@@ -211,6 +229,7 @@ def test_swapped_offsets_for_a_whole_run(cell, tmp_path):
         assert d['joint_state_clock_offset_s'] == pytest.approx(-2.0, abs=0.02)
         assert d['wrench_clock_offset_s'] == pytest.approx(2.0, abs=0.02)
         fig = other.tracking.figures(t1 - 1.0, t1)
-        assert fig['rms_position_error_m'] <= RMS_X, fig
+        report_figure(current_test(), **fig)
+        check_bounds(fig)  # rms_position_error_m
     finally:
         other.close()

@@ -1,23 +1,24 @@
 """
-Shared helpers of the tests that run over real DDS.
+Shared helpers of the tests that run over real DDS: processes, domains, spinning, waits.
 
 * :func:`domain_id`: each test module gets its own ROS domain, offset from the base domain
   of the run (``ROS_DOMAIN_ID`` when the run started, 42 by default), so two runs with
   different bases (two checkouts, CI beside a developer) never hear each other. DDS stays
   on this machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, set by conftest.py and
   passed to every process).
+* :data:`CONTROLLER_MODULE`, :data:`SIM_MODULE`, :data:`RECORDER_MODULE`: what the nodes run.
 * :class:`NodeProcess`: a node started as ``python -m MODULE --ros-args ...``, its output
-  in a log file, stopped by its pid on every path (SIGINT, then SIGKILL).
+  in a log file, stopped by its pid on every path (SIGINT, then SIGKILL); :func:`freeze`
+  stops one with SIGSTOP for a while (the fault), then lets it go on.
 * :class:`Spun`: an rclpy context of its own, in a domain, with nodes spun by a background
   executor thread.
 * :func:`wait_for`, :func:`wait_future`: wait on a condition with a wall timeout that only
   guards against a hang (no test asserts wall time).
 * :func:`parse_diagnostics`: a ``/diagnostics`` status as a dict with typed values;
-* :func:`stamp_s`: a message stamp in seconds; :class:`ForceLog`: the true normal force
-  (``sim/contact_wrench``) and the latest ``/diagnostics`` of each node, stamped, and
-  optionally the controller's ``~/theta_hat`` (stamped on reception, wall clock);
-* :class:`RealTimeRig`: the sim (masses 50 % off, its 0.1 s command watchdog) and the
-  controller in real time with ``config/params.yaml``, a force log and a parameter client.
+  :func:`stamp_s`: a message stamp in seconds.
+
+The watchers of a running cell (the true force, /diagnostics, the telemetry), what a clean
+run's statuses say and the real-time rig are in :mod:`helpers.watch`.
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ PARAMS_FILE = ROOT / 'config' / 'params.yaml'
 WALL_TIMEOUT = 120.0  # only against hangs
 CONTROLLER_MODULE = 'hybrid_force_controller.ros.controller.controller_node'
 SIM_MODULE = 'sim_node.sim_node'
+RECORDER_MODULE = 'hybrid_force_controller.ros.programs.recorder_node'
 CELL_MODULES = {CONTROLLER_MODULE, SIM_MODULE}  # started by node_env(cell=True)
 
 BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID', '42'))
@@ -278,6 +280,22 @@ def wait_future(future: Any, timeout: float = WALL_TIMEOUT) -> Any:
     return future.result()
 
 
+def freeze(proc: NodeProcess, seconds: float) -> tuple[float, float]:
+    """
+    Stop ``proc`` (SIGSTOP) for ``seconds``, then let it go on (SIGCONT).
+
+    The sleep is the fault itself (a frozen process), not a wait on a condition. Returns the
+    wall times (``time.time()``, the sims' stamps) of the stop and of the release.
+    """
+    t_stop = time.time()
+    proc.signal(signal.SIGSTOP)
+    try:
+        time.sleep(seconds)
+    finally:
+        proc.signal(signal.SIGCONT)
+    return t_stop, time.time()
+
+
 def parse_diagnostics(msg: Any) -> dict[str, Any]:
     """
     Parse the first status of a DiagnosticArray.
@@ -307,129 +325,3 @@ def parse_diagnostics(msg: Any) -> dict[str, Any]:
 def stamp_s(stamp: Any) -> float:
     """Return a ``builtin_interfaces/Time`` in seconds."""
     return stamp.sec + 1e-9 * stamp.nanosec
-
-
-class ForceLog:
-    """
-    The true normal force ``n . f`` of ``sim/contact_wrench`` and the latest diagnostics.
-
-    Spun on a :class:`Spun` context: ``ForceLog(spun)``; stamps in seconds.
-    """
-
-    def __init__(self, spun: Spun, n_W: Sequence[float] = (0.0, -1.0, 0.0),
-                 name: str = 'force_log', theta_topic: str | None = None) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import WrenchStamped
-        from rclpy.qos import QoSProfile
-        from std_msgs.msg import Float64MultiArray
-        self.n_W = tuple(float(x) for x in n_W)
-        self.lock = threading.Lock()
-        self.force: list[tuple[float, float]] = []
-        self.theta: list[tuple[float, tuple[float, ...]]] = []
-        self.diags: dict[str, dict[str, Any]] = {}
-        self.node = spun.node(name)
-        q = QoSProfile(depth=1000)
-        self.node.create_subscription(WrenchStamped, 'sim/contact_wrench', self._on_force, q)
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, q)
-        if theta_topic:
-            self.node.create_subscription(Float64MultiArray, theta_topic, self._on_theta, q)
-
-    def _on_theta(self, msg: Any) -> None:
-        with self.lock:
-            self.theta.append((time.time(), tuple(msg.data)))
-
-    def thetas(self) -> tuple[Any, Any]:
-        """Return the reception times (wall clock, s) and theta_hat rows, as numpy arrays."""
-        import numpy as np
-        with self.lock:
-            rows = list(self.theta)
-        return np.array([t for t, _ in rows]), np.array([th for _, th in rows])
-
-    def _on_force(self, msg: Any) -> None:
-        f = msg.wrench.force
-        n = self.n_W
-        with self.lock:
-            self.force.append((stamp_s(msg.header.stamp), n[0] * f.x + n[1] * f.y + n[2] * f.z))
-
-    def _on_diag(self, msg: Any) -> None:
-        d = parse_diagnostics(msg)
-        d['received_s'] = time.monotonic()
-        with self.lock:
-            self.diags[msg.status[0].hardware_id] = d
-
-    def diag(self, hardware_id: str) -> dict[str, Any]:
-        """Return the latest /diagnostics values of ``hardware_id`` ({} before any)."""
-        with self.lock:
-            return dict(self.diags.get(hardware_id, {}))
-
-    def fresh_diag(self, hardware_id: str, alive: Iterable[NodeProcess] = ()) -> dict[str, Any]:
-        """Wait for a status of ``hardware_id`` newer than now and return it."""
-        t = time.monotonic()
-        wait_for(lambda: self.diag(hardware_id).get('received_s', 0.0) > t,
-                 f'a new /diagnostics status of {hardware_id}', alive=alive)
-        return self.diag(hardware_id)
-
-    def latest_t(self) -> float:
-        """Return the stamp of the newest force sample, s (0 before any)."""
-        with self.lock:
-            return self.force[-1][0] if self.force else 0.0
-
-    def forces(self, t0: float = -float('inf'), t1: float = float('inf')) -> tuple[Any, Any]:
-        """Return the stamps and forces in [t0, t1] as two numpy arrays."""
-        import numpy as np
-        with self.lock:
-            pairs = [(t, f) for t, f in self.force if t0 <= t <= t1]
-        return (np.array([t for t, _ in pairs]), np.array([f for _, f in pairs]))
-
-
-MASSES_OFF = ('-p', 'masses:=[0.65, 1.35]')
-
-
-class RealTimeRig:
-    """
-    Sim (masses 50 % off, ``command_timeout`` 0.1 s) and controller in real time.
-
-    With a :class:`ForceLog` (and theta_hat) and a parameter client of the controller;
-    ``ctrl_prefix`` runs the controller under a wrapper (``setpriv`` ...); ``isolated``: on the
-    cell domain behind the gateway (the product's default; the suite's is ``off``). Stopped by
-    pid.
-    """
-
-    def __init__(self, tmp_path: Path, domain: int, ctrl_prefix: Sequence[str] = (),
-                 sim_args: Sequence[str] = MASSES_OFF, ctrl_args: Sequence[str] = (),
-                 isolated: bool = False) -> None:
-        from rclpy.parameter_client import AsyncParameterClient
-        env = node_env(domain, cell=True, **ISOLATED) if isolated else None
-        self.sim = NodeProcess(SIM_MODULE, tmp_path / 'sim.log', domain, list(sim_args),
-                               env=env)
-        self.ctrl = NodeProcess(CONTROLLER_MODULE, tmp_path / 'controller.log', domain,
-                                list(ctrl_args), env=env)
-        if ctrl_prefix:
-            self.ctrl.command_override = [*ctrl_prefix, *self.ctrl.command[:3]]
-            self.ctrl.args = ['--params-file', str(self.ctrl.params_file)]
-        self.procs = [self.sim, self.ctrl]
-        self.spun = Spun(domain)
-        self.log = ForceLog(self.spun, theta_topic='hybrid_force_controller/theta_hat')
-        self.params = AsyncParameterClient(self.log.node, 'hybrid_force_controller')
-        self.t_touch = 0.0
-
-    def start(self) -> 'RealTimeRig':
-        from hybrid_force_controller.core.runtime.contact import in_contact
-        for p in self.procs:
-            p.start()
-        wait_for(lambda: self.log.latest_t() > 0.0 and in_contact(self.log.forces()[1][-1]),
-                 'the tool to touch the surface', alive=self.procs)
-        self.t_touch = self.log.latest_t()
-        return self
-
-    def close(self) -> None:
-        for p in self.procs:
-            p.stop()
-        self.spun.close()
-
-    def settled(self, f_d: float, hold_s: float = 0.3, tol: float = 0.1) -> bool:
-        """Say whether the last ``hold_s`` of true force is within ``tol`` of ``f_d``."""
-        import numpy as np
-        t = self.log.latest_t()
-        _, f = self.log.forces(t - hold_s, t)
-        return f.size > 10 and bool(np.all(np.abs(f - f_d) < tol))

@@ -23,12 +23,19 @@ participant. Every
   loop, even while the graph momentarily misses the sim's writer (a best-effort writer of the
   gateway's appeared on the cell's ``joint_states`` that way).
 
-Messages pass as serialized bytes (no conversion). The gateway ends on SIGINT/SIGTERM, or
+Messages pass as serialized bytes (no conversion). The scan runs on the user side's thread;
+what it changes on the cell's node (the mirrors' subscriptions, the services' clients) it hands
+to the cell side's thread, which makes the change between two of its spins: an entity made on
+one thread while the other's executor waited on that node crashed the process once (a
+segfault in ``create_subscription``, docs/results.md section 19). The gateway ends on
+SIGINT/SIGTERM, or
 ``IDLE_EXIT_S`` after the last process of the cell has ended (:class:`Members`).
 """
 from __future__ import annotations
 
 import argparse
+from collections import deque
+import faulthandler
 import importlib
 import os
 import signal
@@ -56,6 +63,7 @@ STARTUP_S = 30.0  # a gateway that no node announced itself to ends after this l
 SERVICE_TIMEOUT_S = 10.0
 GATEWAY_NODE = '_hfc_gateway'
 NO_TYPE_SERVICE = [Parameter('start_type_description_service', value=False)]
+_PENDING = object()  # a mirror's cell subscription asked of the cell's thread, not made yet
 
 
 def import_type(name: str) -> Any:
@@ -169,7 +177,8 @@ class Gateway:
         self.out: dict[str, list] = {}  # cell -> user: [publisher, subscription or None, qos]
         self.plant_topics: set[str] = set()  # every topic a cell node has published
         self.missing: dict[str, int] = {}  # scans a mirrored topic has had no writer
-        self.into: dict[str, tuple[Any, Any]] = {}  # user -> cell: (subscription, publisher)
+        self.into: dict[str, tuple] = {}  # user -> cell: (subscription, [publisher], type, qos)
+        self.cell_ops: deque = deque()  # changes of the cell's node, made on the cell's thread
         self.user.create_timer(SCAN_S, self._scan_guarded)
 
     # ------------------------------------------------------------------ the scan
@@ -211,7 +220,7 @@ class Gateway:
         for name in [s for s in self.services if s not in wanted]:
             server, client = self.services.pop(name)
             server.destroy()
-            self.cell.destroy_client(client)
+            self.cell_ops.append(lambda c=client: c and self.cell.destroy_client(c[0]))
         for name, (key, type_name) in wanted.items():
             if name not in self.services:
                 self._add_service(self.nodes[key], name, type_name)
@@ -221,9 +230,16 @@ class Gateway:
             srv_type = import_type(type_name)
         except (ImportError, AttributeError, ValueError):
             return  # a type this Python cannot load: not shown
-        client = self.cell.create_client(srv_type, name)
+        made: list = []  # the cell's client, once the cell's thread has made it
+        self.cell_ops.append(lambda: made.append(self.cell.create_client(srv_type, name)))
 
         def forward(request: Any, response: Any) -> Any:
+            deadline = time.monotonic() + SERVICE_TIMEOUT_S
+            while not made and time.monotonic() < deadline:
+                time.sleep(0.01)  # the cell's thread makes it within one spin (0.1 s)
+            if not made:
+                return response
+            client = made[0]
             if not client.service_is_ready():  # the gateway's client not matched yet
                 client.wait_for_service(SERVICE_TIMEOUT_S)
             future = client.call_async(request)
@@ -232,15 +248,14 @@ class Gateway:
             if done.wait(SERVICE_TIMEOUT_S) and future.result() is not None:
                 return future.result()
             return response
-        self.services[name] = (twin.create_service(srv_type, name, forward), client)
+        self.services[name] = (twin.create_service(srv_type, name, forward), made)
 
     def _sync_out(self, graph: Graph, published: set[str]) -> None:
         for topic in [t for t in self.out if t not in published]:
-            pub, sub, _ = self.out.pop(topic)
+            entry = self.out.pop(topic)
             self.missing.pop(topic, None)
-            if sub is not None:
-                self.cell.destroy_subscription(sub)
-            self.user.destroy_publisher(pub)
+            self._drop_cell_subscription(entry)
+            self.user.destroy_publisher(entry[0])
         for topic in published:
             if topic not in self.out:
                 msg_type = self._type(graph, topic)
@@ -251,26 +266,45 @@ class Gateway:
             entry = self.out[topic]
             watched = entry[0].get_subscription_count() > 0
             if watched and entry[1] is None:
-                pub = entry[0]
-                entry[1] = self.cell.create_subscription(pub.msg_type, topic, pub.publish,
-                                                         entry[2], raw=True)
+                entry[1] = _PENDING
+                self.cell_ops.append(lambda e=entry, t=topic: self._make_cell_subscription(e, t))
             elif not watched and entry[1] is not None:
-                self.cell.destroy_subscription(entry[1])
-                entry[1] = None
+                self._drop_cell_subscription(entry)
+
+    def _make_cell_subscription(self, entry: list, topic: str) -> None:
+        """Make a mirror's subscription in the cell (on the cell's thread), if still wanted."""
+        if entry[1] is _PENDING:
+            pub = entry[0]
+            entry[1] = self.cell.create_subscription(pub.msg_type, topic, pub.publish, entry[2],
+                                                     raw=True)
+
+    def _drop_cell_subscription(self, entry: list) -> None:
+        """Stop a mirror's feed: its cell subscription destroyed on the cell's thread."""
+        sub, entry[1] = entry[1], None
+        if sub is not None and sub is not _PENDING:
+            self.cell_ops.append(lambda: self.cell.destroy_subscription(sub))
 
     def _sync_into(self, graph: Graph, subscribed_only: set[str]) -> None:
         for topic in [t for t in self.into if t not in subscribed_only]:
-            sub, pub = self.into.pop(topic)
-            self.user.destroy_subscription(sub)
-            self.cell.destroy_publisher(pub)
-        for topic in subscribed_only - set(self.into):
-            msg_type = self._type(graph, topic)
-            if msg_type is None:
-                continue
-            qos = mirror_qos(graph.sub_infos[topic])
-            pub = self.cell.create_publisher(msg_type, topic, qos)
-            sub = self.user.create_subscription(msg_type, topic, pub.publish, qos, raw=True)
-            self.into[topic] = (sub, pub)
+            sub, made, _, _ = self.into.pop(topic)
+            if sub is not None:
+                self.user.destroy_subscription(sub)
+            self.cell_ops.append(lambda m=made: m and self.cell.destroy_publisher(m[0]))
+        for topic in subscribed_only:
+            if topic not in self.into:  # first the cell's publisher, on the cell's thread
+                msg_type = self._type(graph, topic)
+                if msg_type is None:
+                    continue
+                qos = mirror_qos(graph.sub_infos[topic])
+                made: list = []
+                self.cell_ops.append(lambda m=made, a=(msg_type, topic, qos):
+                                     m.append(self.cell.create_publisher(*a)))
+                self.into[topic] = (None, made, msg_type, qos)
+            sub, made, msg_type, qos = self.into[topic]
+            if sub is None and made:  # then, at a scan after, the user's side that feeds it
+                sub = self.user.create_subscription(msg_type, topic, made[0].publish, qos,
+                                                    raw=True)
+                self.into[topic] = (sub, made, msg_type, qos)
 
     @staticmethod
     def _type(graph: Graph, topic: str) -> Any:
@@ -292,6 +326,12 @@ class Gateway:
 
     def _spin_cell(self, stop: threading.Event) -> None:
         while not stop.is_set():
+            while self.cell_ops:  # the scan's changes of the cell's node, between two spins
+                try:
+                    self.cell_ops.popleft()()
+                except Exception as exc:  # noqa: BLE001 - one change failed: the rest go on
+                    self.cell.get_logger().warning(f'cell change: {exc!r}',
+                                                   throttle_duration_sec=5.0)
             self._spin_once(self.exec_cell, self.cell)
 
     @staticmethod
@@ -324,6 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--public', type=int, required=True, help="the user's ROS_DOMAIN_ID")
     ap.add_argument('--cell', type=int, required=True, help='the cell domain')
     args = ap.parse_args(argv)
+    faulthandler.enable()  # a crash leaves its stack in the log of the node that started it
     os.sched_setaffinity(0, range(os.cpu_count() or 1))  # not the control thread's CPUs
     domains = CellDomains(args.public, args.cell)
     lock = gateway_lock(domains)

@@ -53,6 +53,15 @@ def _learned(rig: RealTimeRig) -> bool:
             and rig.log.diag('hybrid_force_controller').get('theta_trusted', 'none') != 'none')
 
 
+def _learning(rig: RealTimeRig) -> str:
+    """Say where each condition of :func:`_learned` stands (for a wait that timed out)."""
+    t_th, theta = rig.log.thetas()
+    return (f'theta_hat learned and trusted: settled {rig.settled(F_D, hold_s=1.0)}, steady '
+            f'{theta_steady(t_th, theta)}, theta_hat {theta[-1] if len(theta) else None} '
+            f'(true {THETA_TRUE}), trusted '
+            f"{rig.log.diag('hybrid_force_controller').get('theta_trusted', 'none')!r}")
+
+
 def _run_past(rig: RealTimeRig, t: float) -> None:
     wait_for(lambda: rig.log.latest_t() > t, f'the force log past {t:.1f}', alive=rig.procs)
 
@@ -65,7 +74,7 @@ def run(tmp_path_factory):
                       ctrl_args=['-p', f'flight_recorder_dir:={tmp / "flight"}'])
     try:
         rig.start()  # the masses are learned in about 8 s; then theta_hat holds still
-        wait_for(lambda: _learned(rig), 'theta_hat learned and trusted', alive=rig.procs)
+        wait_for(lambda: _learned(rig), lambda: _learning(rig), alive=rig.procs)
         sim0, freezes = _diag(rig, 'sim'), []
         for ms in FREEZES_MS:
             wait_for(lambda: rig.settled(F_D, hold_s=1.0), 'calm before the freeze',

@@ -9,7 +9,9 @@ import pytest
 TABLE = {'multiple': 5.0, 'measured': 'a test', 'bounds': {
     'test_x.py::test_y[a]': {'rms': {'worst': 0.01, 'runs': 10, 'bound': 0.05},
                              'lost_s': {'worst': 0.0, 'runs': 10, 'bound': 0.0},
-                             'inner.peak': {'worst': 2.0, 'runs': 10, 'bound': 10.0}}}}
+                             'inner.peak': {'worst': 2.0, 'runs': 10, 'bound': 10.0},
+                             'doc': {'worst': 0.5, 'runs': 10, 'bound': 2.5,
+                                     'documented': 'measured before'}}}}
 
 
 @pytest.fixture
@@ -47,7 +49,7 @@ def test_not_a_number_fails_a_skip_is_not_checked_and_a_stray_name_fails(table):
 
 
 def test_the_worst_of_the_runs_makes_the_bound(table, tmp_path, capsys):
-    lines = [{'test': 'test/test_x.py::test_y[a]', 'rms': r, 'lost_s': 0.0,
+    lines = [{'test': 'test/test_x.py::test_y[a]', 'rms': r, 'lost_s': 0.0, 'doc': 0.1,
               'inner': {'peak': p}} for r, p in ((0.02, 1.0), (0.03, 3.0))]
     lines.append({'test': 'test/test_x.py::test_y[a]', 'rms': 'nan'})  # a failed run: worst
     figures = tmp_path / 'figures.jsonl'
@@ -56,4 +58,5 @@ def test_the_worst_of_the_runs_makes_the_bound(table, tmp_path, capsys):
     got = json.loads(table.read_text())['bounds']['test_x.py::test_y[a]']
     assert got['rms'] == {'worst': 0.03, 'runs': 2, 'bound': pytest.approx(0.15)}
     assert got['inner.peak']['bound'] == pytest.approx(15.0) and got['lost_s']['bound'] == 0.0
+    assert got['doc']['worst'] == 0.5 and got['doc']['bound'] == pytest.approx(2.5)
     assert bounds.worst_of(lines)['test_x.py::test_y[a]']['rms'] == (float('inf'), 3)

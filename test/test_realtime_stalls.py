@@ -20,7 +20,7 @@ from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, freeze, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.tools.bag_io import load_run
-from hybrid_force_controller.tools.recovery_figures import recovery_figures, theta_steady
+from hybrid_force_controller.tools.recovery_figures import recovery_figures
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -40,24 +40,36 @@ def _diag(rig: RealTimeRig, name: str) -> dict:
     return rig.log.fresh_diag(name, rig.procs)
 
 
+NEAR_S, NEAR_RTOL = 3.0, 0.10  # theta_hat near the sim's masses for this long
+
+
+def _near(rig: RealTimeRig) -> bool:
+    """Say whether every theta_hat row of the last NEAR_S is within NEAR_RTOL of THETA_TRUE."""
+    t, theta = rig.log.thetas()
+    if t.size < 10 or t[-1] - t[0] < NEAR_S:
+        return False
+    return bool(np.allclose(theta[t >= t[-1] - NEAR_S], THETA_TRUE, rtol=NEAR_RTOL, atol=0.0))
+
+
 def _learned(rig: RealTimeRig) -> bool:
     """
-    Say whether theta_hat is learned: steady, trusted, near the sim's masses, force settled.
+    Say whether theta_hat is learned: near the sim's masses, trusted, the force settled.
 
-    Steady alone is not enough: an episode that begins before theta_hat has converged holds
-    it, steady, at a trusted estimate of an early calm stretch (seen under taskset -c 0).
+    Learned is not steady: on the paper's path (x_d = 1 + 0.1 sin t) theta_hat keeps
+    swinging around the masses (up to 5 % off, 2-7 % peak to peak over any 2 s, with and
+    without two busy loops beside the cell), so a wait for 1 % over 2 s timed out in CI.
+    Near for NEAR_S is also not an estimate held by an episode that began before convergence
+    (seen under taskset -c 0): that one sits at an early calm stretch's value, off the masses.
     """
-    t_th, theta = rig.log.thetas()
-    return (rig.settled(F_D, hold_s=1.0) and theta_steady(t_th, theta)
-            and bool(np.allclose(theta[-1], THETA_TRUE, rtol=0.05))
+    return (rig.settled(F_D, hold_s=1.0) and _near(rig)
             and rig.log.diag('hybrid_force_controller').get('theta_trusted', 'none') != 'none')
 
 
 def _learning(rig: RealTimeRig) -> str:
     """Say where each condition of :func:`_learned` stands (for a wait that timed out)."""
     t_th, theta = rig.log.thetas()
-    return (f'theta_hat learned and trusted: settled {rig.settled(F_D, hold_s=1.0)}, steady '
-            f'{theta_steady(t_th, theta)}, theta_hat {theta[-1] if len(theta) else None} '
+    return (f'theta_hat learned and trusted: settled {rig.settled(F_D, hold_s=1.0)}, near '
+            f'{_near(rig)}, theta_hat {theta[-1] if len(theta) else None} '
             f'(true {THETA_TRUE}), trusted '
             f"{rig.log.diag('hybrid_force_controller').get('theta_trusted', 'none')!r}")
 

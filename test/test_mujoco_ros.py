@@ -109,7 +109,8 @@ def test_closed_loop_in_real_time_on_mujoco(tmp_path, arm):
 def test_wrist_wrench_reads_the_tool_weight_in_the_end_effector_frame(tmp_path):
     domain = domain_id('mujoco_ros')
     sim = _node(SIM_MODULE, tmp_path, 'sim', domain,
-                _files('params.yaml', 'mujoco.yaml') + ['-p', 'tool_mass:=0.25'])
+                _files('params.yaml', 'mujoco.yaml')
+                + ['-p', 'tool_mass:=0.25', '-p', 'noise_sigma:=0.0'])
     got: dict[str, object] = {}
     with Spun(domain) as spun:
         node = spun.node('wrench_watcher')
@@ -124,7 +125,7 @@ def test_wrist_wrench_reads_the_tool_weight_in_the_end_effector_frame(tmp_path):
     R_W_ee = model.kinematics(np.array(js.position), np.zeros(2)).R_W_ee
     assert msg.header.frame_id == 'tool0'
     f = msg.wrench.force
-    # brakes on, the surface touching at 0 N: the sensor feels the weight only
+    # brakes on, the surface touching at 0 N, no noise: the sensor feels the weight only
     np.testing.assert_allclose([f.x, f.y, f.z], 0.25 * R_W_ee.T @ [0.0, -9.81, 0.0], atol=1e-6)
 
 

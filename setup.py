@@ -43,7 +43,7 @@ setup(
             'controller = hybrid_force_controller.ros.controller.controller_node:main',
             'sim = sim_node.sim_node:main',
             'paper = hybrid_force_controller.ros.programs.cli:paper',
-            'bench = hybrid_force_controller.ros.programs.bench:main',
+            'bench = hybrid_force_controller.ros.lab.bench:main',
             'demo = hybrid_force_controller.ros.programs.demo:main',
             'report = hybrid_force_controller.ros.programs.cli:report',
         ],

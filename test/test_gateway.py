@@ -22,7 +22,7 @@ from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, ROOT, Spun, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
-from hybrid_force_controller.ros.programs.join_stall import PROBES
+from hybrid_force_controller.ros.lab.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
 import pytest
 

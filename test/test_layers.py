@@ -14,8 +14,9 @@ Layers: core <- tools <- ros (and sim_node).
 Groups inside ``core/`` (docs/design.md opens with the map), each importing only the groups
 before it: ``model`` (numpy and pinocchio only) <- ``config`` (pure numpy) <- ``law`` <-
 ``runtime`` <- ``offline``. So the law never imports the runtime, and nothing that runs on a
-robot imports the offline plant. Inside ``ros/``: ``common`` <- ``controller`` <- ``programs``;
-the sim node's modules import ``ros.common`` only.
+robot imports the offline plant. Inside ``ros/``: ``common`` <- ``controller`` <- ``programs``
+(what a user runs) <- ``lab`` (the instruments: benches, injectors, meters); the sim node's
+modules import ``ros.common`` only.
 
 Every import statement of every module is checked (also those inside functions), and a
 fresh interpreter that imports every core and tool module must not have loaded rclpy.
@@ -40,7 +41,7 @@ ALLOWED = {
 }
 ALLOWED_LAYERS = {'core': {'core'}, 'tools': {'core', 'tools'}}
 CORE_GROUPS = ('model', 'config', 'law', 'runtime', 'offline')  # each imports those before it
-ROS_GROUPS = ('common', 'controller', 'programs')
+ROS_GROUPS = ('common', 'controller', 'programs', 'lab')
 EXT_OF_GROUP = {'model': STDLIB | {'numpy', 'pinocchio'}, 'config': STDLIB | {'numpy'}}
 
 

@@ -22,7 +22,7 @@ from helpers.ros import (CONTROLLER_MODULE, domain_id, NodeProcess, ROOT, SIM_MO
 from helpers.watch import assert_clean_run, ForceLog
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
-from hybrid_force_controller.ros.programs.tracking import TrackingMeter
+from hybrid_force_controller.ros.lab.tracking import TrackingMeter
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter

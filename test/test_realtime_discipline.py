@@ -35,7 +35,7 @@ from helpers.ros import domain_id, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.core.runtime.contact import in_contact
 from hybrid_force_controller.ros.common.scheduling import one_cpu_reason
-from hybrid_force_controller.ros.programs.run_faults import storm_values
+from hybrid_force_controller.ros.lab.run_faults import storm_values
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter

@@ -19,7 +19,7 @@ import subprocess
 import sys
 
 from helpers.ros import domain_id, node_env, NodeProcess, ROOT, wait_for
-from hybrid_force_controller.ros.programs.load import cpu_seconds
+from hybrid_force_controller.ros.lab.load import cpu_seconds
 import pytest
 
 
@@ -27,7 +27,7 @@ ENTRY_POINTS = {
     'controller': 'hybrid_force_controller.ros.controller.controller_node:main',
     'sim': 'sim_node.sim_node:main',
     'paper': 'hybrid_force_controller.ros.programs.cli:paper',
-    'bench': 'hybrid_force_controller.ros.programs.bench:main',
+    'bench': 'hybrid_force_controller.ros.lab.bench:main',
     'demo': 'hybrid_force_controller.ros.programs.demo:main',
     'report': 'hybrid_force_controller.ros.programs.cli:report',
 }

@@ -3,7 +3,7 @@ Wrong inputs a real cell sends, in real time over DDS (issue 25), beside the rea
 
 One sim (masses 50 % off) whose sensor clocks are off for the whole run (joint states 2 s
 ahead, the wrench 2 s behind: drivers on PCs that are not synced) and one controller with
-``config/params.yaml`` run for the module; an :class:`~hybrid_force_controller.ros.programs.
+``config/params.yaml`` run for the module; an :class:`~hybrid_force_controller.ros.lab.
 injector.Injector` in this process publishes on the controller's input topics. In order: a
 copy of the newest wrench stamped an hour ahead, one a minute ahead, the same for the joint
 states, a joint state with a 0.2 rad glitch on joint1, one with joint2 at 40 rad/s (the URDF
@@ -30,8 +30,8 @@ from helpers.figures import current_test, needs_cpus, report_figure
 from helpers.ros import domain_id, wait_for
 from helpers.watch import MASSES_OFF, RealTimeRig
 from hybrid_force_controller.core.runtime.contact import in_contact
-from hybrid_force_controller.ros.programs.injector import Injector
-from hybrid_force_controller.ros.programs.tracking import TrackingMeter
+from hybrid_force_controller.ros.lab.injector import Injector
+from hybrid_force_controller.ros.lab.tracking import TrackingMeter
 import numpy as np
 import pytest
 

@@ -19,7 +19,7 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
 - with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
   tick dearer): its controller step timed in a subprocess, alternating three times with
   this tree's tick in this process, and ``tick_median_over_old`` (this / that, medians).
-``bench --ros`` adds the ROS loop in real time (ros/programs/bench.py).
+``bench --ros`` adds the ROS loop in real time (ros/lab/bench.py).
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """
-``python -m hybrid_force_controller.ros.programs.wipe_trials``: the Panda's wipe under faults.
+``python -m hybrid_force_controller.ros.lab.wipe_trials``: the Panda's wipe under faults.
 
 Runs ``demo --arm panda --physics mujoco --task wipe`` (real time) ``--runs`` times, each with
 one disturbance while the user's path runs (from when its script has sent the square):
@@ -129,7 +129,7 @@ def _joiners(demo: subprocess.Popen, env: dict[str, str]) -> int:
 
 def _trial(args: argparse.Namespace, out: Path, domain: int) -> dict:
     """Run one demo with its disturbance; return the figures."""
-    from .launch import PROFILE_VAR
+    from ..programs.launch import PROFILE_VAR
     from ...tools.cell_trial_figures import trial_figures
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

@@ -6,7 +6,7 @@ same scenario (the config files of ``--arm``/``--physics``, as ``bench --ros``) 
 one ROS domain, with one bare node (on the first arm's inputs) as the yardstick. Over
 ``--ros-duration`` s after the warm-up it reports per arm the commands per second that reached
 the plant (the sim's own count over its own time), the sim's command timeouts, the tracking
-(ros/programs/tracking.py: RMS tangential position and true-force errors, contact lost) and
+(ros/lab/tracking.py: RMS tangential position and true-force errors, contact lost) and
 the CPU of each process (% of one core), and each controller's CPU over the bare node's.
 """
 from __future__ import annotations
@@ -20,8 +20,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .launch import cell_env
+from .cell_processes import start_node, stop_nodes, wait_new_report
 from .load import CpuMeter
+from ..programs.launch import cell_env
 
 __all__ = ['multi_arm_figures']
 
@@ -66,7 +67,6 @@ class _Watcher:
             return self.latest.get(name, (0.0, {}))
 
     def wait_new(self, name: str, timeout: float = 10.0) -> dict[str, str]:
-        from .bench import wait_new_report
         return wait_new_report(self.get, name, time.monotonic(), timeout)
 
     def close(self) -> None:
@@ -81,19 +81,19 @@ class _Watcher:
 def _launch(arms: int, ros_args: Sequence[str], sim_args: Sequence[str],
             env: dict[str, str], log_dir: Path, procs: dict) -> list[str]:
     """Start the pairs (and the bare node) into ``procs``; return the namespaces."""
-    from .bench import _start
-    from .launch import PKG
+    from ..programs.launch import PKG
     namespaces = [f'/arm{k + 1}' for k in range(arms)]
     for ns in namespaces:
         remap = ['-r', f'__ns:={ns}']
-        procs[f'sim{ns}'] = _start(f'sim_{ns[1:]}', ['sim_node.sim_node', '--ros-args', *ros_args,
-                                                     *sim_args, *remap], env, log_dir)
-        procs[f'controller{ns}'] = _start(
+        procs[f'sim{ns}'] = start_node(
+            f'sim_{ns[1:]}', ['sim_node.sim_node', '--ros-args', *ros_args, *sim_args, *remap],
+            env, log_dir)
+        procs[f'controller{ns}'] = start_node(
             f'controller_{ns[1:]}', [f'{PKG}.ros.controller.controller_node', '--ros-args',
                                      *ros_args, *remap], env, log_dir)
     # the yardstick takes the first arm's inputs, as its controller does
-    procs['bare'] = _start('bare', [f'{PKG}.ros.programs.bare_node', '--ros-args', '-r',
-                                    f'__ns:={namespaces[0]}'], env, log_dir)
+    procs['bare'] = start_node('bare', [f'{PKG}.ros.lab.bare_node', '--ros-args', '-r',
+                                        f'__ns:={namespaces[0]}'], env, log_dir)
     return namespaces
 
 
@@ -126,7 +126,6 @@ def multi_arm_figures(arms: int, duration_s: float, ros_args: Sequence[str],
                       sim_args: Sequence[str], n_W: Sequence[float], f_d: float,
                       domain: int | None = None) -> dict[str, Any]:
     """Run ``arms`` pairs for ``duration_s`` s of measurement; the figures per arm (docstring)."""
-    from .bench import _stop
     domain = int(os.environ.get('ROS_DOMAIN_ID', '38')) if domain is None else domain
     env = cell_env(dict(os.environ, ROS_DOMAIN_ID=str(domain)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -148,7 +147,7 @@ def multi_arm_figures(arms: int, duration_s: float, ros_args: Sequence[str],
             out = {ns: _arm_figures(ns, watch, (sims0[ns], sims1[ns]),
                                     (stamps0[ns], stamps1[ns]), cpu) for ns in namespaces}
         finally:
-            _stop(procs)
+            stop_nodes(procs)
             watch.close()
     return {'ros_arms': arms, 'ros_duration_s': duration_s,
             'bare_cpu_percent': round(cpu['bare'], 1), 'arms': out}

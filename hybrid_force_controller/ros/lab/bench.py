@@ -9,7 +9,7 @@ each run it reports the CPU use of each process (% of one core: user + system ti
 the sim), the controller's tick period p50/p99 and input-to-command delay p50/p99/max
 (joint-state stamp to effort published, node clock), read from ``/diagnostics``, and the
 tracking over the measured window (RMS position and true-force errors, contact lost:
-ros/programs/tracking.py) with the sim's masses ``--masses`` (default 50 % off the URDF's).
+ros/lab/tracking.py) with the sim's masses ``--masses`` (default 50 % off the URDF's).
 """
 from __future__ import annotations
 
@@ -21,133 +21,22 @@ from pathlib import Path
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from .launch import cell_env, find_config, PAPER_MASSES_OFF, PKG
+from .cell_processes import Diagnostics, start_node, stop_nodes, WARM_UP_TIMEOUT_S
 from .load import CpuMeter, ThreadCpuMeter
 from .run_faults import freeze, param_storm
-from .tracking import TrackingMeter
 from ..common.cell import cell_domains
+from ..programs.launch import cell_env, find_config, PAPER_MASSES_OFF, PKG
 from ...tools.offline_bench import offline_figures
 
 __all__ = ['main', 'ros_loop_figures']
 
-WARM_UP_TIMEOUT_S = 90.0
 
-
-def wait_new_report(get: Callable[[str], tuple[float, dict[str, str]]], name: str,
-                    after: float, timeout: float = 10.0) -> dict[str, str]:
-    """
-    Wait for a /diagnostics report of ``name`` received after ``after`` (monotonic s).
-
-    ``get(name)`` returns (reception time, values) of the newest report. Raises TimeoutError.
-    """
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        t, values = get(name)
-        if t > after:
-            return values
-        time.sleep(0.05)
-    raise TimeoutError(f'no /diagnostics from {name} within {timeout} s')
-
-
-class _Diagnostics:
-    """Latest /diagnostics values per hardware_id, in a background-spun context."""
-
-    def __init__(self, domain: int, n_W: Sequence[float] = (0.0, -1.0, 0.0),
-                 f_d: float = 1.0) -> None:
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from ..common.runner import make_executor
-        self.latest: dict[str, dict[str, str]] = {}
-        self.received: dict[str, float] = {}
-        self.lock = threading.Lock()
-        self.context = rclpy.Context()
-        from rclpy.signals import SignalHandlerOptions
-        rclpy.init(context=self.context, domain_id=domain,  # Ctrl-C: KeyboardInterrupt
-                   signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node('ros_bench', context=self.context)
-        from rclpy.parameter_client import AsyncParameterClient
-        from std_msgs.msg import Float64MultiArray
-        from .bare_node import TOPIC_BARE_COMMANDS
-        from ..common.qos import COMMAND_QOS
-        self.sim_history: list[tuple[float, dict[str, str]]] = []
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
-        # the bare node's commands have a subscriber, as the controller's have the sim
-        self.node.create_subscription(Float64MultiArray, TOPIC_BARE_COMMANDS, lambda m: None,
-                                      COMMAND_QOS, raw=True)
-        self.tracking = TrackingMeter(self.node, np.array(n_W, dtype=float), f_d)
-        self.params = AsyncParameterClient(self.node, PKG)
-        self.executor = make_executor('single_threaded', self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        from rclpy._rclpy_pybind11 import RCLError
-        from rclpy.executors import ExternalShutdownException
-        try:
-            self.executor.spin()
-        except (ExternalShutdownException, RCLError):  # close() shut the context down
-            pass
-
-    def _on_diag(self, msg: Any) -> None:
-        for st in msg.status:
-            values = {kv.key: kv.value for kv in st.values}
-            with self.lock:
-                self.latest[st.hardware_id] = values
-                self.received[st.hardware_id] = time.monotonic()
-                if st.hardware_id == 'sim':
-                    self.sim_history.append((time.monotonic(), values))
-
-    def sim_reports(self, first: dict[str, str], last: dict[str, str]) -> list[dict[str, str]]:
-        """Return the sim's reports after ``first`` up to ``last``."""
-        with self.lock:
-            reports = [v for _, v in self.sim_history]
-        ids = [id(r) for r in reports]
-        i, j = ids.index(id(first)), ids.index(id(last))
-        return reports[i + 1:j + 1]
-
-    def get(self, hardware_id: str) -> tuple[float, dict[str, str]]:
-        with self.lock:
-            return self.received.get(hardware_id, 0.0), self.latest.get(hardware_id, {})
-
-    def wait_new(self, hardware_id: str, after: float, timeout: float = 10.0) -> dict[str, str]:
-        return wait_new_report(self.get, hardware_id, after, timeout)
-
-    def close(self) -> None:
-        import rclpy  # the context first: spin() ends before anything is destroyed
-        rclpy.try_shutdown(context=self.context)
-        self.thread.join(5.0)
-        self.executor.shutdown(timeout_sec=5.0)
-        self.node.destroy_node()
-
-
-def _start(name: str, argv: list[str], env: dict[str, str], log_dir: Path,
-           prefix: Sequence[str] = ()) -> subprocess.Popen:
-    with open(log_dir / f'{name}.log', 'wb') as log:
-        return subprocess.Popen([*prefix, sys.executable, '-m', *argv], env=env, stdout=log,
-                                stderr=subprocess.STDOUT)
-
-
-def _stop(procs: dict[str, subprocess.Popen]) -> None:
-    """SIGINT each process by pid, then SIGKILL what is left."""
-    for p in procs.values():
-        if p.poll() is None:
-            p.send_signal(2)
-    for p in procs.values():
-        try:
-            p.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-
-
-def _warm_up(diag: _Diagnostics, procs: dict[str, subprocess.Popen]) -> None:
+def _warm_up(diag: Diagnostics, procs: dict[str, subprocess.Popen]) -> None:
     deadline = time.monotonic() + WARM_UP_TIMEOUT_S
     while diag.get(PKG)[1].get('mode') != 'running' or not diag.get('sim')[1]:
         dead = [n for n, p in procs.items() if p.poll() is not None]
@@ -194,19 +83,18 @@ def _launch(cfg: dict[str, Any], env: dict[str, str], log_dir: Path,
     """Start the processes of a run into ``procs`` (one by one: a signal stops those started)."""
     ros_args = ['--ros-args', *cfg['scenario'], *cfg['params']]
     pin = ['taskset', '-c', '0'] if cfg['one_core'] else []
-    procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args, *cfg['sim_args']], env,
-                          log_dir, pin)
+    procs['sim'] = start_node('sim', ['sim_node.sim_node', *ros_args, *cfg['sim_args']],
+                              env, log_dir, pin)
     ctrl = [f'{PKG}.ros.controller.controller_node', *ros_args]
-    procs['controller'] = _start('controller', ctrl, env, log_dir, pin)
+    procs['controller'] = start_node('controller', ctrl, env, log_dir, pin)
     near = dict(env, ROS_DOMAIN_ID=str(cell_domains(env).node_domain))  # the cell's domain
-    procs['bare'] = _start('bare', [f'{PKG}.ros.programs.bare_node'], near, log_dir)
+    procs['bare'] = start_node('bare', [f'{PKG}.ros.lab.bare_node'], near, log_dir)
     if cfg['load_duty'] > 0.0:
         bag = log_dir / f'bag_{time.monotonic_ns()}'
-        procs['recorder'] = _start('recorder', [f'{PKG}.ros.programs.recorder_node', str(bag)],
-                                   near, log_dir)
-        procs['load'] = _start('load', [f'{PKG}.ros.programs.load', '--duty',
-                                        str(cfg['load_duty'])],
-                               env, log_dir)
+        procs['recorder'] = start_node(
+            'recorder', [f'{PKG}.ros.programs.recorder_node', str(bag)], near, log_dir)
+        procs['load'] = start_node(
+            'load', [f'{PKG}.ros.lab.load', '--duty', str(cfg['load_duty'])], env, log_dir)
 
 
 def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
@@ -216,7 +104,7 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
     # cell's transport, with or without a gateway: the figures compare the cell, not the
     # mirror a user's 1 kHz reader would cost on ROS_DOMAIN_ID (docs/results.md, section 16)
     watch = cell_domains(env).node_domain
-    diag = _Diagnostics(watch, *cfg['n_f_d'])
+    diag = Diagnostics(watch, *cfg['n_f_d'])
     procs: dict[str, subprocess.Popen] = {}
     extra: dict[str, Any] = {}
     try:
@@ -246,7 +134,7 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
         figures['cpu_percent_per_thread'] = per_thread
         figures.update(_tracking(diag, t_stamp0, t_end, frozen, extra))
     finally:
-        _stop(procs)
+        stop_nodes(procs)
         diag.close()
     return figures
 
@@ -326,7 +214,7 @@ def _params(args: argparse.Namespace) -> list[str]:
 
 def _scenario(args: argparse.Namespace) -> dict[str, Any]:
     """Return the scenario of ``--arm``/``--physics`` (as ``demo`` runs it) for a run."""
-    from .demo import _scenario_args
+    from ..programs.demo import _scenario_args
     ros_args, mu, _ = _scenario_args(args)
     sim_args = ['-p', f'surface_friction:={mu!r}'] if args.physics == 'mujoco' else []
     n_f_d = ((0.0, -1.0, 0.0), 1.0) if args.arm == 'paper' else ((0.0, 0.0, -1.0), 5.0)

@@ -1,11 +1,11 @@
 """
-``python -m hybrid_force_controller.ros.programs.physics_bench``: the sim's physics side by side.
+``python -m hybrid_force_controller.ros.lab.physics_bench``: the sim's physics side by side.
 
 It prints JSON. It runs the same closed loop (sim + controller, real time, 1 kHz, the config
 files of ``demo``) once per ``--physics`` at the same time, each in its own ROS domain (base
 ``ROS_DOMAIN_ID``, +1, ...), so every physics sees the same machine load. Over the same
 ``--duration`` s window (after ``--settle`` s) it reports per loop the CPU use of the sim and the
-controller (% of one core, ``/proc/<pid>/stat``) and the tracking (ros/programs/tracking.py: RMS
+controller (% of one core, ``/proc/<pid>/stat``) and the tracking (ros/lab/tracking.py: RMS
 tangential position and true-force errors, contact lost), and the contact lost over the whole run
 after the first touch.
 """
@@ -21,9 +21,9 @@ import tempfile
 import time
 from typing import Any, Sequence
 
-from .demo import _scenario_args
-from .launch import cell_env, PKG
 from .load import CpuMeter
+from ..programs.demo import _scenario_args
+from ..programs.launch import cell_env, PKG
 
 __all__ = ['main']
 

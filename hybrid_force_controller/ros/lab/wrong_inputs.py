@@ -1,5 +1,5 @@
 """
-``python -m hybrid_force_controller.ros.programs.wrong_inputs``: issue 25's figures, as JSON.
+``python -m hybrid_force_controller.ros.lab.wrong_inputs``: issue 25's figures, as JSON.
 
 Each run starts the sim (masses 50 % off) and the controller in real time with
 ``config/params.yaml`` as ``bench --ros`` does (its processes, /diagnostics and tracking:
@@ -31,9 +31,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .bench import _Diagnostics, _start, _stop, WARM_UP_TIMEOUT_S
+from .cell_processes import Diagnostics, start_node, stop_nodes, WARM_UP_TIMEOUT_S
 from .injector import Injector
-from .launch import cell_env, find_config, PKG, use_loopback_dds
+from ..programs.launch import cell_env, find_config, PKG, use_loopback_dds
 
 __all__ = ['CASES', 'main', 'run_case']
 
@@ -61,12 +61,12 @@ def _wait(what: str, ok: Callable[[], bool], procs: dict) -> None:
         time.sleep(0.1)
 
 
-def _refused(diag: _Diagnostics, before: dict[str, str]) -> bool:
+def _refused(diag: Diagnostics, before: dict[str, str]) -> bool:
     now = diag.get(PKG)[1]
     return any(int(now.get(k, 0)) > int(before[k]) for k in REFUSED)
 
 
-def _play(case: str, play: Play | None, injector: Injector, diag: _Diagnostics,
+def _play(case: str, play: Play | None, injector: Injector, diag: Diagnostics,
           before: dict[str, str]) -> int:
     """
     Play the case; a single message again (up to 5 times) until the controller refused it.
@@ -94,16 +94,16 @@ def run_case(case: str, domain: int, log_dir: Path, window_s: float = 10.0) -> d
     env = cell_env(dict(os.environ, ROS_DOMAIN_ID=str(domain)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ros_args = ['--ros-args', '--params-file', str(find_config()), '-p', 'masses:=[0.65, 1.35]']
-    diag = _Diagnostics(domain)
+    diag = Diagnostics(domain)
     injector = Injector(diag.node)
     procs: dict = {}
     try:
-        procs['sim'] = _start('sim', ['sim_node.sim_node', *ros_args,
-                                      '-p', f'joint_state_clock_offset:={js_offset}',
-                                      '-p', f'wrench_clock_offset:={wrench_offset}'],
-                              env, log_dir)
-        procs['controller'] = _start('controller', [f'{PKG}.ros.controller.controller_node',
-                                                    *ros_args], env, log_dir)
+        procs['sim'] = start_node('sim', ['sim_node.sim_node', *ros_args,
+                                          '-p', f'joint_state_clock_offset:={js_offset}',
+                                          '-p', f'wrench_clock_offset:={wrench_offset}'],
+                                  env, log_dir)
+        procs['controller'] = start_node(
+            'controller', [f'{PKG}.ros.controller.controller_node', *ros_args], env, log_dir)
         _wait('the loop to run', lambda: diag.get(PKG)[1].get('mode') == 'running'
               and injector.ready(), procs)
         _wait('theta_hat to be learned', diag.tracking.theta_steady, procs)
@@ -124,7 +124,7 @@ def run_case(case: str, domain: int, log_dir: Path, window_s: float = 10.0) -> d
         if case == 'fuzz':
             out['fuzz_sent_over_s'] = injector.fuzz_span[1] - injector.fuzz_span[0]
     finally:
-        _stop(procs)
+        stop_nodes(procs)
         diag.close()
     return out
 

@@ -1,7 +1,7 @@
 """
 Process measurements for ``bench --ros``: CPU time from ``/proc`` and a CPU load generator.
 
-``python -m hybrid_force_controller.ros.programs.load --duty 0.3`` busy-loops 30 % of one core (in
+``python -m hybrid_force_controller.ros.lab.load --duty 0.3`` busy-loops 30 % of one core (in
 10 ms windows: busy for ``duty`` of each, asleep for the rest) until SIGINT/SIGTERM.
 """
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """
-``python -m hybrid_force_controller.ros.programs.join_stall``: joining nodes against the cell.
+``python -m hybrid_force_controller.ros.lab.join_stall``: joining nodes against the cell.
 
 Starts the sim and the controller as ``demo --arm ARM --physics PHYSICS`` does (``NAME:=VALUE``
 after ``--sim`` or ``--controller`` are added), lets them run ``--warm-up`` s, then alternates
@@ -139,8 +139,8 @@ def _monitor(domain: int):
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the stretches; print the gaps as JSON; 0, or 2 when a node ended early."""
     args = _parser().parse_args(argv)
-    from .demo import _scenario_args, _sim_masses, _start_nodes
-    from .launch import cell_env, find_config, PROFILE_VAR, stop_processes
+    from ..programs.demo import _scenario_args, _sim_masses, _start_nodes
+    from ..programs.launch import cell_env, find_config, PROFILE_VAR, stop_processes
     from ..common.cell import cell_domains
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     physics = args.physics or ('mujoco' if args.arm == 'panda' else 'paper')

@@ -30,6 +30,7 @@ ENTRY_POINTS = {
     'bench': 'hybrid_force_controller.ros.lab.bench:main',
     'demo': 'hybrid_force_controller.ros.programs.demo:main',
     'report': 'hybrid_force_controller.ros.programs.cli:report',
+    'identify_tool': 'hybrid_force_controller.ros.programs.cli:identify_tool',
 }
 DOMAIN = domain_id('shutdown')
 

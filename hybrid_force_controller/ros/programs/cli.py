@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from typing import Callable, Sequence
 
-__all__ = ['interruptible', 'paper', 'report']
+__all__ = ['identify_tool', 'interruptible', 'paper', 'report']
 
 
 def interruptible(load: Callable[[], Callable[[Sequence[str] | None], int]], name: str,
@@ -25,6 +25,16 @@ def _paper_main() -> Callable[[Sequence[str] | None], int]:
 def _report_main() -> Callable[[Sequence[str] | None], int]:
     from ...tools.report import main
     return main
+
+
+def _identify_tool_main() -> Callable[[Sequence[str] | None], int]:
+    from ...tools.identify_tool import main
+    return main
+
+
+def identify_tool(argv: Sequence[str] | None = None) -> int:
+    """``identify_tool``: the tool's mass and centre of mass from a bag (tools.identify_tool)."""
+    return interruptible(_identify_tool_main, 'identify_tool', argv)
 
 
 def paper(argv: Sequence[str] | None = None) -> int:

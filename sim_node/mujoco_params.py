@@ -15,9 +15,12 @@ from typing import Any, Mapping
 
 from hybrid_force_controller.core.config.params import ParameterValidationError, ParamSpec as _S
 
-__all__ = ['MUJOCO_SCHEMA', 'MujocoOptions', 'PHYSICS', 'check_physics', 'mujoco_options']
+__all__ = ['DISC_HALF_THICKNESS_M', 'MUJOCO_SCHEMA', 'MujocoOptions', 'PHYSICS', 'TOOL_SHAPES',
+           'check_physics', 'mujoco_options']
 
 PHYSICS = ('paper', 'mujoco')
+TOOL_SHAPES = ('sphere', 'disc')
+DISC_HALF_THICKNESS_M = 0.002  # a disc tool is 4 mm thick
 
 MUJOCO_SCHEMA: tuple[_S, ...] = tuple(_S(*a, read_only=True) for a in (
     ('physics', 'string', 'paper', "Plant: 'paper' (pinocchio ABA against the paper's "
@@ -25,8 +28,12 @@ MUJOCO_SCHEMA: tuple[_S, ...] = tuple(_S(*a, read_only=True) for a in (
      'with friction, a wrist force/torque sensor).'),
     ('tool_radius', 'double', 0.01, 'mujoco: radius of the sphere tool centred on '
      'end_effector_link, m.', 0.0, 10.0, True),
-    ('tool_mass', 'double', 0.0, 'mujoco: mass of the sphere tool, kg (the wrist sensor '
+    ('tool_mass', 'double', 0.0, 'mujoco: mass of the tool, kg (the wrist sensor '
      'feels its weight).', 0.0, 1e3),
+    ('tool_shape', 'string', 'sphere', "mujoco: the tool, 'sphere' (tool_radius, centred on "
+     "end_effector_link) or 'disc' (a flat pad of tool_radius, 4 mm thick, centred there, "
+     "its axis along end_effector_link's z: tilted, it touches on its rim and the wrist "
+     'sensor reads the moment).'),
     ('surface_damping', 'double', 0.0, 'mujoco: contact damping of the surface, N s/m.',
      0.0, 1e6),
     ('surface_friction', 'double', 0.0, 'mujoco: Coulomb friction coefficient mu of the '
@@ -46,6 +53,7 @@ class MujocoOptions:
 
     tool_radius: float = 0.01
     tool_mass: float = 0.0
+    tool_shape: str = 'sphere'
     surface_damping: float = 0.0
     surface_friction: float = 0.0
     joint_damping: float = 0.0
@@ -74,7 +82,11 @@ def mujoco_options(values: Mapping[str, Any]) -> MujocoOptions:
             raise ParameterValidationError(f'{name} = {x:g} is outside [{spec.lo:g}, '
                                            f'{spec.hi:g}]')
         out[name] = float(x)
+    shape = values.get('tool_shape', 'sphere')
+    if shape not in TOOL_SHAPES:
+        raise ParameterValidationError(f'tool_shape must be one of {list(TOOL_SHAPES)}, '
+                                       f'got {shape!r}')
     limits = values.get('joint_limits', True)
     if not isinstance(limits, bool):
         raise ParameterValidationError(f'joint_limits must be true or false, got {limits!r}')
-    return MujocoOptions(joint_limits=limits, **out)
+    return MujocoOptions(joint_limits=limits, tool_shape=shape, **out)

@@ -7,7 +7,8 @@ model (the other joints deleted: welded at 0, as the reduced pinocchio model loc
 (``boundinertia``) and gravity from the model. It adds
 
 * a tool body ``hfc_tool`` on ``end_effector_link`` (same frame) carrying a sphere of
-  ``tool_radius`` and ``tool_mass`` centred on the link's origin, and a site there with a
+  ``tool_radius`` and ``tool_mass`` centred on the link's origin (``tool_shape`` disc: a
+  4 mm thick disc of that radius, its axis the link's z), and a site there with a
   ``force`` + ``torque`` sensor pair: the wrist sensor, in the end-effector frame;
 * the surface: a table top ``hfc_surface`` (a 2 m x 2 m box) whose top face passes through the
   surface point, its outward normal ``-n_W`` (``n_W`` points into the surface), mounted on a
@@ -21,8 +22,10 @@ model (the other joints deleted: welded at 0, as the reduced pinocchio model loc
   is ``1 / (1 / k_c + cos^2 phi / k_spring) = k / (0.2 + 0.8 cos^2 phi)``: ``k`` at the surface
   point, +2.5 % at 10 deg, +10 % at 20 deg; the shape is fixed at start-up, its radius and pose
   may change at run time;
-* one explicit contact pair, sphere on table top (elliptic cone; friction ``mu`` when
-  ``surface_friction`` > 0, else frictionless, condim 1);
+* one explicit contact pair, the tool on the table top (elliptic cone; friction ``mu`` when
+  ``surface_friction`` > 0, else frictionless, condim 1). A disc lying flat touches at four
+  points (MuJoCo's convex collision), each with the contact's stiffness: its static stiffness is
+  then ``1 / (0.8 / k + 0.2 / (4 k)) = 1.18 k``; on its rim (tilted), ``k``;
 * the pipeline stages it never needs switched off (``UNUSED_STAGES``: islands, mid-phase,
   parent filtering, actuation; joint friction loss when ``joint_friction`` is 0).
 
@@ -56,7 +59,7 @@ from hybrid_force_controller.core.offline.environment import (Surface, SURFACE_S
 import mujoco
 import numpy as np
 
-from .mujoco_params import MujocoOptions
+from .mujoco_params import DISC_HALF_THICKNESS_M, MujocoOptions
 
 __all__ = ['Scene', 'build_scene', 'check_surface', 'plate_mass', 'set_surface',
            'surface_shift']
@@ -180,7 +183,7 @@ def _configure_joints(spec: mujoco.MjSpec, opts: MujocoOptions) -> None:
 
 
 def _add_tool(spec: mujoco.MjSpec, ee_link: str, opts: MujocoOptions) -> None:
-    """Tool body on the end-effector link: sphere, mass, sensor site, force+torque sensors."""
+    """Tool body on the end-effector link: sphere or disc, mass, sensor site, F/T sensors."""
     try:
         parent = spec.body(ee_link)
     except Exception:  # noqa: BLE001 - the binding's lookup error type varies
@@ -188,13 +191,19 @@ def _add_tool(spec: mujoco.MjSpec, ee_link: str, opts: MujocoOptions) -> None:
     if parent is None:
         raise ParameterValidationError(f"physics:=mujoco needs end_effector_link '{ee_link}' "
                                        'to be a URDF link')
-    r, m = opts.tool_radius, opts.tool_mass
+    r, m, h = opts.tool_radius, opts.tool_mass, DISC_HALF_THICKNESS_M
     tool = parent.add_body(name=TOOL_BODY, pos=[0.0, 0.0, 0.0])
     tool.explicitinertial = True
     tool.mass = m
-    tool.inertia = [0.4 * m * r * r] * 3
-    tool.add_geom(name=TOOL_GEOM, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0.0, 0.0],
-                  mass=0.0, contype=0, conaffinity=0, rgba=[0.9, 0.4, 0.1, 1.0])
+    if opts.tool_shape == 'disc':  # a cylinder along the link's z (MuJoCo's own axis)
+        side = m * (3.0 * r * r + 4.0 * h * h) / 12.0
+        tool.inertia = [side, side, 0.5 * m * r * r]
+        kind, size = mujoco.mjtGeom.mjGEOM_CYLINDER, [r, h, 0.0]
+    else:
+        tool.inertia = [0.4 * m * r * r] * 3
+        kind, size = mujoco.mjtGeom.mjGEOM_SPHERE, [r, 0.0, 0.0]
+    tool.add_geom(name=TOOL_GEOM, type=kind, size=size, mass=0.0, contype=0, conaffinity=0,
+                  rgba=[0.9, 0.4, 0.1, 1.0])
     tool.add_site(name=FT_SITE, pos=[0.0, 0.0, 0.0])
     for kind, name in ((mujoco.mjtSensor.mjSENS_FORCE, 'hfc_ft_force'),
                        (mujoco.mjtSensor.mjSENS_TORQUE, 'hfc_ft_torque')):

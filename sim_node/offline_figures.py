@@ -67,8 +67,9 @@ def run(arm: str, physics: str, friction: float, duration: float = 20.0,
                                                             if k in names}))
     q0 = np.asarray(v['q0'], dtype=float)
     n = np.asarray(v['surface_normal'], dtype=float) / np.linalg.norm(v['surface_normal'])
-    p0 = model.kinematics(q0, np.zeros(model.n)).p_W  # the sim's default: touching at start
-    surface = ElasticSurface.create(v['stiffness'], p0 + touch_offset(v) * n, n)
+    kin0 = model.kinematics(q0, np.zeros(model.n))  # the sim's default: touching at start
+    reach = touch_offset(v, kin0.R_W_ee[:, 2])(n)
+    surface = ElasticSurface.create(v['stiffness'], kin0.p_W + reach * n, n)
     plant = make_plant(v, model, _urdf_text(v), surface, q0)
     log = run_loop(runtime, plant, duration, TimingModel.ros_measured(seed=seed))
     n_W, f_d = runtime.params.law.n, runtime.params.law.f_d

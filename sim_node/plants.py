@@ -7,21 +7,40 @@ Both plants have the interface the sim node and the offline engine drive (``t``,
 """
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import Any, Callable
 
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import Surface
 from hybrid_force_controller.core.offline.simulator import ArmSimulator
 import numpy as np
 
-from .mujoco_params import check_physics, mujoco_options
+from .mujoco_params import check_physics, DISC_HALF_THICKNESS_M, mujoco_options
 
 __all__ = ['make_plant', 'touch_offset']
 
 
-def touch_offset(v: dict[str, Any]) -> float:
-    """Distance from the end-effector origin to the surface it touches at the start, m."""
-    return v['tool_radius'] if check_physics(v['physics']) == 'mujoco' else 0.0
+def touch_offset(v: dict[str, Any], axis_W: np.ndarray | None = None
+                 ) -> Callable[[np.ndarray], float]:
+    """
+    Return ``reach(n_W)``: from the end-effector origin to a surface that touches the tool, m.
+
+    ``n_W`` is the surface's unit normal; the tool is at its start pose.
+    0 on the paper's physics (a point tool); on MuJoCo the sphere's radius, and for a disc of
+    radius r and half thickness h whose axis is ``axis_W`` (the start's end-effector z, base
+    frame) its support along n, ``r sqrt(1 - c^2) + h c`` with ``c = |axis_W . n_W|``.
+    """
+    if check_physics(v['physics']) != 'mujoco':
+        return lambda n_W: 0.0
+    r = float(v['tool_radius'])
+    if v.get('tool_shape', 'sphere') != 'disc' or axis_W is None:
+        return lambda n_W: r
+    a = np.asarray(axis_W, dtype=float)
+
+    def disc(n_W: np.ndarray) -> float:
+        c = min(abs(float(a @ n_W)), 1.0)
+        return r * math.sqrt(1.0 - c * c) + DISC_HALF_THICKNESS_M * c
+    return disc
 
 
 def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,

@@ -107,8 +107,9 @@ class SimNode(Node):
         self.to_model = [self.joints.index(j) for j in model.joint_names]
         self.to_msg = np.array([model.joint_names.index(j) for j in self.joints])
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
-        self.p0_W = model.kinematics(q0, np.zeros(model.n)).p_W
-        self.touch_offset = touch_offset(v)  # the tool's radius on MuJoCo, else 0
+        kin0 = model.kinematics(q0, np.zeros(model.n))
+        self.p0_W = kin0.p_W
+        self.touch_offset = touch_offset(v, kin0.R_W_ee[:, 2])  # the tool's reach, 0 on paper
         surface, (self.sensor_frozen, self.sensor_offset) = self._surface(v)
         self.sim = make_plant(v, model, urdf, surface, q0)
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],

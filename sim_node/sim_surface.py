@@ -29,13 +29,15 @@ def sensor_offset(value: Any) -> np.ndarray | None:
     return offset if np.any(offset) else None
 
 
-def surface_from_values(v: dict[str, Any], p0_W: np.ndarray, touch_offset: float,
+def surface_from_values(v: dict[str, Any], p0_W: np.ndarray,
+                        touch_offset: Callable[[np.ndarray], float],
                         check: Callable[[Surface], None] | None = None
                         ) -> tuple[Surface | None, tuple]:
     """
     Build the surface the values describe (None when disabled) and the sensor's faults.
 
-    ``p0_W`` is the tool's start, ``touch_offset`` the tool's radius (0 on the paper's physics),
+    ``p0_W`` is the tool's start, ``touch_offset(n_W)`` the tool's reach along a normal
+    (plants.py; 0 on the paper's physics),
     ``check`` the plant's own limits (MuJoCo's). The faults are ``sensor_frozen`` and
     ``sensor_offset`` (a 3-vector, N, or None for none). SurfaceError when a value is bad.
     """
@@ -46,8 +48,9 @@ def surface_from_values(v: dict[str, Any], p0_W: np.ndarray, touch_offset: float
     if not isinstance(v['surface_shape'], str) or not isinstance(v['surface_radius'], float):
         raise SurfaceError('surface_shape must be a string and surface_radius a number')
     plane = ElasticSurface.create(v['stiffness'], v['surface_point'] or p0_W, v['surface_normal'])
-    if not v['surface_point'] and touch_offset:  # touching the sphere tool
-        plane = ElasticSurface.create(plane.k, p0_W + touch_offset * plane.n_W, plane.n_W)
+    offset = touch_offset(plane.n_W)
+    if not v['surface_point'] and offset:  # touching the tool (MuJoCo's sphere or disc)
+        plane = ElasticSurface.create(plane.k, p0_W + offset * plane.n_W, plane.n_W)
     surface = plane if v['surface_shape'] == 'plane' else make_surface(
         v['surface_shape'], plane.k, plane.x0_W, plane.n_W, v['surface_radius'],
         v['surface_axis'])

@@ -9,6 +9,9 @@ The MuJoCo plant (``physics:=mujoco``) offline: fidelity, contact, sensor, frict
 * the true contact force (the table top's ``cfrc_ext``) is MuJoCo's contact force, friction
   included;
 * with friction mu the tool sticks under a side push below mu f_n and slides above it;
+* a disc tool (``tool_shape``) flat on the surface reads no moment at the wrist; tilted, it
+  touches on its rim and the wrist reads the moment, the force times the rim's lever; a
+  sphere's contact force passes through its centre (no moment);
 * the offline engine runs the controller against it (the plant interface of ArmSimulator);
 * bad MuJoCo settings are refused with a typed error.
 """
@@ -28,6 +31,7 @@ import pinocchio as pin
 import pytest
 from sim_node.mujoco_params import check_physics, mujoco_options, MujocoOptions
 from sim_node.mujoco_plant import MujocoPlant
+from sim_node.plants import touch_offset
 
 
 def _plant(name, k=1700.0, **opts):
@@ -126,6 +130,7 @@ def test_the_engine_runs_the_controller_against_mujoco_offline():
     ({'surface_friction': -0.1}, 'surface_friction'),
     ({'tool_mass': float('nan')}, 'tool_mass must be a finite number'),
     ({'joint_limits': 'yes'}, 'joint_limits must be true or false'),
+    ({'tool_shape': 'cube'}, "tool_shape must be one of \\['sphere', 'disc'\\]"),
 ])
 def test_bad_mujoco_options_are_refused(values, words):
     with pytest.raises(ParameterValidationError, match=words):
@@ -190,3 +195,43 @@ def test_true_force_is_the_sum_of_mujocos_contact_forces(name):
     np.testing.assert_allclose(meas.f_true_W, _contact_forces_on_surface_W(plant), atol=1e-12)
     plant.surface = None
     assert np.all(plant.step(np.zeros(model.n), 1e-3).f_true_W == 0.0)
+
+
+def _rot_y(v, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]])
+
+
+@pytest.mark.parametrize('shape, tilt', [('disc', 0.0), ('disc', 0.3), ('sphere', 0.3)])
+def test_a_disc_reads_the_moment_of_its_rim_a_sphere_none(shape, tilt):
+    """The arm braked at q0, the surface 1 mm into the tool (its normal tilt rad off the axis)."""
+    model, urdf, q0, _ = mujoco_arm('panda')
+    kin = model.kinematics(q0, np.zeros(model.n))
+    axis_W, r = kin.R_W_ee[:, 2], 0.03
+    n_W = _rot_y(axis_W, tilt)
+    reach = touch_offset({'physics': 'mujoco', 'tool_radius': r, 'tool_shape': shape},
+                         axis_W)(n_W)
+    surface = ElasticSurface.create(3000.0, kin.p_W + (reach - 0.001) * n_W, n_W)
+    plant = MujocoPlant(model, urdf, MujocoOptions(tool_radius=r, tool_shape=shape), surface,
+                        q0)
+    f = np.linalg.norm(plant.hold(1e-3).f_true_W)
+    tau = np.linalg.norm(plant.torque_S)
+    print(f'{shape} tilted {tilt} rad: |f| {f:.3g} N, |tau| {tau:.3g} N m, tau / (r f) '
+          f'{tau / (r * f):.3f}, contacts {plant.d.ncon}')
+    assert f > 1.0
+    if shape == 'disc' and tilt > 0.0:  # on its rim: the lever is about r (0.94 r measured)
+        assert tau > 0.8 * r * f and plant.d.ncon == 1
+    else:  # flat (four contacts, symmetric), or a sphere's force through its centre
+        assert tau < 1e-3 * r * f
+
+
+def test_the_disc_reaches_a_surface_by_its_rim_and_its_face():
+    v = {'physics': 'mujoco', 'tool_radius': 0.03, 'tool_shape': 'disc'}
+    axis_W = np.array([0.0, 0.0, -1.0])
+    reach = touch_offset(v, axis_W)
+    assert reach(axis_W) == pytest.approx(0.002)  # its face: half the 4 mm
+    assert reach(np.array([1.0, 0.0, 0.0])) == pytest.approx(0.03)  # edge on: its rim
+    n = _rot_y(axis_W, 0.3)
+    assert reach(n) == pytest.approx(0.03 * np.sin(0.3) + 0.002 * np.cos(0.3))
+    assert touch_offset(dict(v, tool_shape='sphere'), axis_W)(n) == 0.03
+    assert touch_offset(dict(v, physics='paper'), axis_W)(n) == 0.0

@@ -144,25 +144,29 @@ def _values(**kw):
 def test_the_tool_start_touches_every_shape(shape, tool_radius):
     p0 = np.array([0.4, 0.1, 0.3])
     surface, (frozen, offset) = surface_from_values(_values(surface_shape=shape), p0,
-                                                    tool_radius)
+                                                    lambda n_W: tool_radius)
     assert surface.shape == shape and not frozen and offset is None
     contact = p0 + tool_radius * N_DOWN  # the sphere tool's lowest point
     assert surface.penetration(contact) == pytest.approx(0.0, abs=1e-15)
     np.testing.assert_allclose(surface.normal_at(p0), N_DOWN, atol=1e-15)
 
 
+def NO_REACH(n_W):  # a point tool: the paper's physics
+    return 0.0
+
+
 def test_sim_values_are_refused_with_the_reason_and_checked_by_the_plant():
     p0 = np.zeros(3)
     with pytest.raises(SurfaceError, match='surface shape must be one of'):
-        surface_from_values(_values(surface_shape='torus'), p0, 0.0)
+        surface_from_values(_values(surface_shape='torus'), p0, NO_REACH)
     with pytest.raises(SurfaceError, match='perpendicular'):
         surface_from_values(_values(surface_shape='cylinder', surface_axis=[0.0, 0.0, 1.0]),
-                            p0, 0.0)
+                            p0, NO_REACH)
     with pytest.raises(SurfaceError, match='surface_radius a number'):
-        surface_from_values(_values(surface_shape='sphere', surface_radius='big'), p0, 0.0)
+        surface_from_values(_values(surface_shape='sphere', surface_radius='big'), p0, NO_REACH)
     seen = []
     surface, _ = surface_from_values(_values(surface_shape='sphere', surface_enabled=False), p0,
-                                     0.0, seen.append)
+                                     NO_REACH, seen.append)
     assert surface is None and isinstance(seen[0], SphereSurface)  # checked though disabled
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
+from hybrid_force_controller.core.config.params import ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import Surface
 from hybrid_force_controller.core.offline.simulator import ArmSimulator
@@ -51,6 +52,10 @@ def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
     Raises ParameterValidationError for a bad physics or MuJoCo option.
     """
     if check_physics(v['physics']) == 'paper':
+        if v.get('tool_shape', 'sphere') != 'sphere':
+            raise ParameterValidationError(
+                f"tool_shape {v['tool_shape']!r} needs physics:=mujoco: the paper's physics "
+                'models a point tool (no rim, no contact moment)')
         plant = model.with_theta(v['masses']) if v['masses'] else model
         return ArmSimulator(plant, surface, q0, substeps=v['substeps'],
                             noise_sigma=v['noise_sigma'], seed=v['seed'])

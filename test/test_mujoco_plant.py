@@ -225,6 +225,15 @@ def test_a_disc_reads_the_moment_of_its_rim_a_sphere_none(shape, tilt):
         assert tau < 1e-3 * r * f
 
 
+def test_a_disc_on_the_papers_physics_is_refused_with_the_reason():
+    from sim_node.plants import make_plant
+    model, urdf, q0, _ = mujoco_arm('paper')
+    v = {'physics': 'paper', 'tool_shape': 'disc', 'masses': [], 'substeps': 1,
+         'noise_sigma': 0.0, 'seed': 0}
+    with pytest.raises(ParameterValidationError, match='needs physics:=mujoco'):
+        make_plant(v, model, str(urdf), None, q0)
+
+
 def test_the_disc_reaches_a_surface_by_its_rim_and_its_face():
     v = {'physics': 'mujoco', 'tool_radius': 0.03, 'tool_shape': 'disc'}
     axis_W = np.array([0.0, 0.0, -1.0])

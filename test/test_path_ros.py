@@ -7,7 +7,8 @@ for the module, beside a user's script node: it sends a path on ``~/path`` and w
 example does, and checks from ``~/x`` and ``~/x_desired`` that the tool followed it. Then, while
 a second path runs, every refusal of the issue (non-finite values, a wrong frame_id,
 non-monotonic stamps, too fast, too many poses) is answered with its reason on
-``~/path_status`` and the path goes on to its end; an empty path stops the motion; the markers
+``~/path_refused``, the running path's ``~/path_status`` untouched, and the path goes on to its
+end (``~/path_progress`` carries its number and state); an empty path stops the motion; the markers
 arrive. Bounds are loose (the exact figures: docs/results.md): a stall of the loop on a loaded
 machine (the arm falls, the reference re-blends from it over ref_blend_time) is waited out, and
 the failure messages give the controller's /diagnostics counters; the run is clean (no callback
@@ -23,6 +24,7 @@ from helpers.bounds import check_bounds
 from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, stamp_s, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
+from hybrid_force_controller.ros.controller.path_topics import STATE_CODES
 from nav_msgs.msg import Path
 import numpy as np
 import pytest
@@ -44,6 +46,7 @@ class _User(Node):
         super().__init__('path_user', context=context)
         self.lock = threading.Lock()
         self.status: list[str] = []
+        self.refused: list[str] = []
         self.progress: list[tuple[float, ...]] = []
         self.progress_labels: set[tuple[str, ...]] = set()  # checked by the tests, not here
         self.x: list[tuple[float, float]] = []  # (stamp, x) of ~/x and ~/x_desired
@@ -52,6 +55,7 @@ class _User(Node):
         c = 'hybrid_force_controller/'
         self.pub = self.create_publisher(Path, c + 'path', 10)
         self.create_subscription(String, c + 'path_status', self._on_status, LATCHED)
+        self.create_subscription(String, c + 'path_refused', self._on_refused, LATCHED)
         self.create_subscription(Float64MultiArray, c + 'path_progress', self._on_progress,
                                  LATCHED)
         q = QoSProfile(depth=1000)
@@ -65,6 +69,10 @@ class _User(Node):
     def _on_status(self, msg) -> None:
         with self.lock:
             self.status.append(msg.data)
+
+    def _on_refused(self, msg) -> None:
+        with self.lock:
+            self.refused.append(msg.data)
 
     def _on_progress(self, msg) -> None:
         with self.lock:
@@ -172,10 +180,13 @@ def test_a_script_sends_a_path_waits_for_completion_and_the_tool_followed_it(rig
     k = user.send([0.95, 1.05, 1.0])
     first = user.wait_status(k, lambda s: True, 'the path accepted', user.procs)
     assert first in ('running', 'waiting for contact')
-    fraction, time_left, seq = user.wait_progress(seq0, 1.0, 'the path done')
+    fraction, time_left, seq, _ = user.wait_progress(seq0, 1.0, 'the path done')
     assert user.wait_status(k, lambda s: s == 'done', 'done', user.procs) == 'done'
     assert time_left == 0.0 and seq == seq0 + 1
-    assert user.progress_labels == {('fraction', 'time_left_s', 'path')}, user.progress_labels
+    labels = ('fraction', 'time_left_s', 'path', 'state')
+    assert user.progress_labels == {labels}, user.progress_labels
+    wait_for(lambda: user.progress[-1][2:] == (seq0 + 1, STATE_CODES['done']),
+             'the progress says: this path (its number), done', alive=user.procs)
     t_done = user.x[-1][0]
     wait_for(lambda: user.x[-1][0] > t_done + 0.5, 'x after the end', alive=user.procs)
     x, x_d = followed(user, t0, t_done + 0.5)
@@ -210,13 +221,19 @@ def test_every_refusal_gives_its_reason_and_the_running_path_goes_on(rig):
     k = user.send([1.04, 0.96, 1.0])
     user.wait_status(k, lambda s: s == 'running', 'the second path running', user.procs)
     before = user.wait_progress(seq0, 0.1, 'the second path under way')
+    k_running = len(user.status)
     for sent, words in REFUSALS:
-        k = user.send(**sent)
-        reason = user.wait_status(k, lambda s: s.startswith('refused'), words, user.procs)
-        assert words in reason, reason
+        with user.lock:
+            j = len(user.refused)
+        user.send(**sent)
+        wait_for(lambda: len(user.refused) > j, words, alive=user.procs, timeout=60.0)
+        assert words in user.refused[j], user.refused[j]
     after = user.wait_progress(seq0, before[0] + 0.01, 'progress after the refusals')
     assert after[2] == before[2] == seq0 + 1  # the same path, moving on
-    user.wait_status(k, lambda s: s == 'done', 'the second path done', user.procs)
+    # and its status was never overwritten: nothing on ~/path_status but its own states
+    own = user.statuses_since(k_running)
+    assert set(own) <= {'running', 'done'}, own
+    user.wait_status(k_running, lambda s: s == 'done', 'the second path done', user.procs)
     assert user.seq() == before[2]
     t_end, x_end = user.settled()  # it holds where the path ends
     x, _ = followed(user, t_end - 0.3, t_end)
@@ -237,6 +254,11 @@ def test_an_empty_path_stops_the_motion(rig):
     assert 0.92 + 0.005 < x_hold < 0.995, user.events()
     wait_for(lambda: user.x_d[-1][0] > t_still + 0.5, 'x_d later', alive=user.procs)
     assert abs(user.x_d[-1][1] - x_hold) < 1e-9, user.events()  # and stays there
+
+
+def test_the_users_script_reads_the_controllers_state_codes():
+    from hybrid_force_controller.ros.programs.send_path import STATE_CODES as SCRIPT_CODES
+    assert SCRIPT_CODES == STATE_CODES
 
 
 def test_markers_draw_the_path_reference_force_normal_and_plane(rig):

@@ -5,8 +5,10 @@ What a user writes to give the controller a task: it reads where the tool is (``
 surface's normal the controller presses along (``~/wrench_desired``), sends a square of side
 ``--side`` in the surface's tangent plane starting at the tool on ``~/path`` (untimed: the
 controller times it at ``path_speed`` and rounds its corners within ``path_corner_tolerance``),
-prints the progress from ``~/path_progress`` and waits for ``done`` on ``~/path_status``. Exit 0
-when done, 2 when the path was refused or stopped (with the reason) or on ``--timeout``.
+prints the progress from ``~/path_progress`` and waits until that topic says its own path
+(the first path number after sending) is done: the number and the state come in one message.
+Exit 0 when done, 2 when the path was refused (``~/path_refused``, with the reason), stopped or
+replaced by another sender's path, or on ``--timeout``.
 The demo's ``--task wipe`` runs it as a separate process, as a user's script would run.
 """
 from __future__ import annotations
@@ -19,6 +21,11 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ['main', 'square_poses']
+
+# ~/path_progress's state codes (controller/path_topics.py STATE_CODES; not imported: this
+# script needs only the controller's topics, as a user's would)
+STATE_CODES = {'idle': 0.0, 'waiting for contact': 1.0, 'running': 2.0, 'done': 3.0,
+               'stopped': 4.0}
 
 CONTROLLER = 'hybrid_force_controller'
 
@@ -61,14 +68,14 @@ class _Script:
         from std_msgs.msg import Float64MultiArray, String
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.x = self.f_d = None
-        self.status: list[str] = []
-        self.progress = (0.0, 0.0)
+        self.refused: list[str] = []
+        self.progress = (0.0, 0.0, 0.0, 0.0)  # fraction, time left, path number, state code
         node.create_subscription(PointStamped, f'{ctrl}/x', self._on_x, 10)
         node.create_subscription(WrenchStamped, f'{ctrl}/wrench_desired', self._on_f_d, 10)
-        node.create_subscription(String, f'{ctrl}/path_status',
-                                 lambda m: self.status.append(m.data), latched)
+        node.create_subscription(String, f'{ctrl}/path_refused',
+                                 lambda m: self.refused.append(m.data), latched)
         node.create_subscription(Float64MultiArray, f'{ctrl}/path_progress',
-                                 lambda m: setattr(self, 'progress', tuple(m.data[:2])), latched)
+                                 lambda m: setattr(self, 'progress', tuple(m.data[:4])), latched)
         self.pub = node.create_publisher(Path, f'{ctrl}/path', 10)
 
     def _on_x(self, msg) -> None:
@@ -82,8 +89,8 @@ class _Script:
         return (self.x is not None and self.f_d is not None and np.linalg.norm(self.f_d) > 0.0
                 and self.pub.get_subscription_count() > 0)
 
-    def send(self, corners: np.ndarray) -> int:
-        """Publish the path (base frame, stamps all zero); return how many statuses came before."""
+    def send(self, corners: np.ndarray) -> tuple[float, int]:
+        """Publish the path (base frame, stamps all zero); the last path number, refusals seen."""
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import Path
         path = Path()
@@ -93,9 +100,9 @@ class _Script:
             position.x, position.y, position.z = (float(v) for v in c)
             pose.pose.orientation.w = 1.0
             path.poses.append(pose)
-        sent = len(self.status)
+        before = (self.progress[2], len(self.refused))
         self.pub.publish(path)
-        return sent
+        return before
 
 
 def _run(script: _Script, spin, args: argparse.Namespace, deadline: float) -> int:
@@ -105,21 +112,29 @@ def _run(script: _Script, spin, args: argparse.Namespace, deadline: float) -> in
             return 2
     n_W = np.asarray(args.normal if args.normal is not None else script.f_d, dtype=float)
     side = args.side
-    sent = script.send(square_poses(script.x, n_W / np.linalg.norm(n_W), side, args.centred))
+    seq0, refused0 = script.send(square_poses(script.x, n_W / np.linalg.norm(n_W), side,
+                                              args.centred))
     print(f'send_path: a {side * 100:.0f} cm square from {np.round(script.x, 4).tolist()}')
-    shown = -1
+    shown, mine = -1, None
     while True:
         if not spin(deadline):
             print('send_path: timed out', file=sys.stderr)
             return 2
-        for status in script.status[sent:]:
-            if status == 'done':
-                print('send_path: done')
-                return 0
-            if status.startswith(('refused', 'stopped')):
-                print(f'send_path: {status}', file=sys.stderr)
-                return 2
-        fraction, left = script.progress
+        if len(script.refused) > refused0:
+            print(f'send_path: refused: {script.refused[refused0]}', file=sys.stderr)
+            return 2
+        fraction, left, seq, state = script.progress
+        if seq <= seq0:
+            continue  # not accepted yet
+        if mine is None:
+            mine = seq
+            print(f'send_path: accepted as path {seq:.0f}', flush=True)
+        if seq != mine or state == STATE_CODES['stopped']:
+            print(f'send_path: stopped (path {seq:.0f})', file=sys.stderr)
+            return 2
+        if state == STATE_CODES['done']:
+            print('send_path: done')
+            return 0
         if int(fraction * 10) != shown:
             shown = int(fraction * 10)
             print(f'send_path: {100 * fraction:3.0f} % done, {left:.1f} s left', flush=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 
 from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
-from hybrid_force_controller.ros.programs.demo import _scenario_args, main
+from hybrid_force_controller.ros.programs.demo import _scenario_args, _tool_args, main
 from hybrid_force_controller.ros.programs.send_path import square_poses
 import numpy as np
 import pytest
@@ -45,7 +45,8 @@ def test_the_panda_on_mujoco_has_its_table_friction_and_tool():
 
 
 @pytest.mark.parametrize('argv', [['--friction', '0.3'], ['--tool-mass', '0.1'],
-                                  ['--physics', 'mujoco', '--friction', '-1']])
+                                  ['--physics', 'mujoco', '--friction', '-1'],
+                                  ['--tool', 'disc'], ['--tool-radius', '0.02']])
 def test_mujoco_options_need_mujoco(argv, capsys):
     assert main([*argv, '--out', '/nonexistent/never']) == 2
     assert 'needs --physics mujoco' in capsys.readouterr().err
@@ -74,3 +75,9 @@ def test_the_wipes_square_centred_in_the_told_plane():
 def test_a_node_parameter_is_name_colon_equals_value(capsys):
     assert main(['--sim-param', 'surface_normal=[0, 1, 0]', '--out', '/nonexistent/never']) == 2
     assert "a parameter is NAME:=VALUE, got 'surface_normal=[0, 1, 0]'" in capsys.readouterr().err
+
+
+def test_the_pad_is_the_sims_tool_shape_and_radius():
+    args = argparse.Namespace(tool='disc', tool_radius=0.025)
+    assert _tool_args(args) == ['-p', 'tool_shape:=disc', '-p', 'tool_radius:=0.025']
+    assert _tool_args(argparse.Namespace(tool=None, tool_radius=None)) == []

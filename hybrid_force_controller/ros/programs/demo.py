@@ -91,6 +91,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--tool-mass', type=float, default=None,
                     help="mujoco: mass of the tool, kg, in the sim and the controller's "
                     'tool_mass (default 0; the Panda 0.1)')
+    ap.add_argument('--tool', choices=('sphere', 'disc'), default=None,
+                    help="mujoco: the sim's tool_shape (default sphere): disc, a flat pad")
+    ap.add_argument('--tool-radius', type=float, default=None,
+                    help="mujoco: the sim's tool_radius, m (default 0.01)")
     return ap
 
 
@@ -108,6 +112,13 @@ def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:
         from ...core.offline.arm7 import panda_urdf_path
         out += ['-p', f'robot_description:={panda_urdf_path()}']
     return out, mu, mass
+
+
+def _tool_args(args: argparse.Namespace) -> list[str]:
+    """Return the sim's ``-p tool_shape/tool_radius`` of --tool and --tool-radius."""
+    out = ['-p', f'tool_shape:={args.tool}'] if args.tool else []
+    return out + (['-p', f'tool_radius:={float(args.tool_radius)!r}']
+                  if args.tool_radius is not None else [])
 
 
 def _sim_masses(args: argparse.Namespace) -> list[str]:
@@ -210,9 +221,12 @@ def _check(args: argparse.Namespace) -> str:
     """Return what is wrong with the arguments ('' when nothing is)."""
     if args.duration < 6.0:
         return '--duration must be >= 6 s (metrics start at 5 s)'
-    for name, value in (('friction', args.friction), ('tool-mass', args.tool_mass)):
+    for name, value in (('friction', args.friction), ('tool-mass', args.tool_mass),
+                        ('tool-radius', args.tool_radius)):
         if value is not None and (args.physics != 'mujoco' or value < 0.0):
             return f'--{name} needs --physics mujoco and a value >= 0'
+    if args.tool is not None and args.physics != 'mujoco':
+        return '--tool needs --physics mujoco (the paper\'s physics models a point tool)'
     if args.task == 'wipe' and not 0.0 < args.side <= 0.5:
         return '--side must be in (0, 0.5] m'
     if args.surface is not None and (args.task != 'wipe' or args.arm != 'panda'):
@@ -247,7 +261,7 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, fl
              for who in ('sim', 'controller')}
     procs = _start_nodes(ros_args, mu, args.lockstep, cell_env(env), args.out,
                          _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []) + [*shape.sim_args]
-                         + extra['sim'],
+                         + _tool_args(args) + extra['sim'],
                          (WIPE_CONTROLLER_ARGS if wipe else []) + [*shape.ctrl_args]
                          + extra['controller'])
     try:

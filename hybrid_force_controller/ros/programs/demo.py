@@ -226,7 +226,7 @@ def _check(args: argparse.Namespace) -> str:
         if value is not None and (args.physics != 'mujoco' or value < 0.0):
             return f'--{name} needs --physics mujoco and a value >= 0'
     if args.tool is not None and args.physics != 'mujoco':
-        return '--tool needs --physics mujoco (the paper\'s physics models a point tool)'
+        return "--tool needs --physics mujoco (the paper's physics models a point tool)"
     if args.task == 'wipe' and not 0.0 < args.side <= 0.5:
         return '--side must be in (0, 0.5] m'
     if args.surface is not None and (args.task != 'wipe' or args.arm != 'panda'):

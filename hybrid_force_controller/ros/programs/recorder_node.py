@@ -10,6 +10,7 @@ SIGINT/SIGTERM, then closes the bag.
 """
 from __future__ import annotations
 
+import atexit
 from functools import partial
 import importlib
 from pathlib import Path
@@ -69,6 +70,10 @@ class BagRecorder(Node):
             name = self.resolve_topic_name(relative(topic))
             resolved.append((name, msgtype))
         self.writer = BagWriter(bag_path, resolved)
+        # a Ctrl-C that lands while the node is still being built ends run_node before it has
+        # the node to destroy (seen once under taskset -c 0: the bag had no metadata.yaml);
+        # the bag is closed at exit whatever the path (close() is idempotent)
+        atexit.register(self.writer.close)
         for name, msgtype in resolved:
             latch = any(name.endswith(t) for t in LATCHED_TOPICS)  # under any namespace
             self.create_subscription(message_class(msgtype), name, partial(self.record, name),

@@ -5,7 +5,9 @@ Shared by the instruments (bench, multi_arm, wrong_inputs); depends on no instru
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import threading
@@ -119,7 +121,14 @@ def start_node(name: str, argv: list[str], env: dict[str, str], log_dir: Path,
 
 
 def stop_nodes(procs: dict[str, subprocess.Popen]) -> None:
-    """SIGINT each process by pid, then SIGKILL what is left."""
+    """
+    SIGINT each process by pid, then SIGKILL what is left; then any other child of ours.
+
+    A Ctrl-C that lands while a node is being started (inside ``Popen``, or before its
+    ``procs[...] =``) leaves a child that ``procs`` does not hold: it ran on after the bench
+    had ended (seen once in CI). Those are found among this process's children and stopped
+    the same way.
+    """
     for p in procs.values():
         if p.poll() is None:
             p.send_signal(2)
@@ -129,3 +138,43 @@ def stop_nodes(procs: dict[str, subprocess.Popen]) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+    known = {p.pid for p in procs.values()}
+    _stop_pids([pid for pid in _children(os.getpid()) if pid not in known])
+
+
+def _children(pid: int) -> list[int]:
+    """Return the pids of ``pid``'s living children (from /proc)."""
+    out = []
+    for entry in Path('/proc').iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / 'stat').read_text().rsplit(')', 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid and fields[0] != 'Z':
+                out.append(int(entry.name))
+    return out
+
+
+def _stop_pids(pids: list[int], timeout_s: float = 20.0) -> None:
+    """SIGINT ``pids``, reap them; SIGKILL those alive after ``timeout_s``."""
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGINT)
+        except ProcessLookupError:
+            pass
+    deadline = time.monotonic() + timeout_s
+    for pid in pids:
+        while time.monotonic() < deadline:
+            try:
+                if os.waitpid(pid, os.WNOHANG)[0]:
+                    break
+            except ChildProcessError:
+                break
+            time.sleep(0.05)
+        else:
+            try:
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+            except (ProcessLookupError, ChildProcessError):
+                pass

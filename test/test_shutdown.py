@@ -19,6 +19,7 @@ import subprocess
 import sys
 
 from helpers.ros import domain_id, node_env, NodeProcess, ROOT, wait_for
+from hybrid_force_controller.ros.lab.cell_processes import child_pids
 from hybrid_force_controller.ros.lab.load import cpu_seconds
 import pytest
 
@@ -63,19 +64,6 @@ class _Program(NodeProcess):
     @property
     def command(self) -> list[str]:
         return list(self.command_override)
-
-
-def _children(pid: int) -> list[int]:
-    out = []
-    for entry in Path('/proc').iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / 'stat').read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(')', 1)[1].split()[1]) == pid:
-                out.append(int(entry.name))
-    return out
 
 
 def _sigint_and_check(proc: NodeProcess, kids: list[int] = ()) -> None:
@@ -153,13 +141,13 @@ def test_sigint_ends_a_running_program_cleanly(tmp_path, exe, argv, ready):
     kids: list[int] = []
     with proc:
         if ready == 'children':
-            wait_for(lambda: len(_children(proc.pid)) >= 2, 'its node processes', alive=[proc])
-            kids = _children(proc.pid)
+            wait_for(lambda: len(child_pids(proc.pid)) >= 2, 'its node processes', alive=[proc])
+            kids = child_pids(proc.pid)
         elif ready == 'cpu':
             wait_for(lambda: not proc.alive or cpu_seconds(proc.pid) > 0.8, 'it running')
             if not proc.alive:
                 pytest.fail(f'{exe} ended before the signal: {proc.log_since()[-2000:]}')
         else:
             wait_for(lambda: ready in proc.log_since(), ready, alive=[proc])
-            kids = _children(proc.pid)
+            kids = child_pids(proc.pid)
         _sigint_and_check(proc, kids)

@@ -19,7 +19,8 @@ import numpy as np
 from .tracking import TrackingMeter
 from ..programs.launch import PKG
 
-__all__ = ['Diagnostics', 'start_node', 'stop_nodes', 'wait_new_report', 'WARM_UP_TIMEOUT_S']
+__all__ = ['Diagnostics', 'child_pids', 'start_node', 'stop_nodes', 'wait_new_report',
+           'WARM_UP_TIMEOUT_S']
 
 WARM_UP_TIMEOUT_S = 90.0
 
@@ -139,10 +140,10 @@ def stop_nodes(procs: dict[str, subprocess.Popen]) -> None:
             p.kill()
             p.wait()
     known = {p.pid for p in procs.values()}
-    _stop_pids([pid for pid in _children(os.getpid()) if pid not in known])
+    _stop_pids([pid for pid in child_pids(os.getpid()) if pid not in known])
 
 
-def _children(pid: int) -> list[int]:
+def child_pids(pid: int) -> list[int]:
     """Return the pids of ``pid``'s living children (from /proc)."""
     out = []
     for entry in Path('/proc').iterdir():

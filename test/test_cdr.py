@@ -41,10 +41,11 @@ def test_wrench_round_trip(frame):
     msg.header.frame_id = frame
     msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 5
     msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = 1.5, -math.inf, math.nan
-    msg.wrench.torque.x = 9.0
+    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = 9.0, -0.25, 1e-9
     data = read_wrench_stamped(serialize_message(msg))
     assert data.frame_id == frame and data.stamp_s == 12 + 5e-9
     assert data.force[:2] == (1.5, -math.inf) and math.isnan(data.force[2])
+    assert data.torque == (9.0, -0.25, 1e-9)
 
 
 def test_float64_array_round_trip():

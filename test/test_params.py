@@ -4,11 +4,12 @@ from __future__ import annotations
 import math
 import re
 
-from hybrid_force_controller.core.config.groups import NormalConfig
+from hybrid_force_controller.core.config.groups import NormalConfig, OrientationConfig
 from hybrid_force_controller.core.config.params import (build_params, CONTROLLER_SCHEMA,
                                                         ControllerParams, LawGains,
                                                         ParameterValidationError, RuntimeConfig,
                                                         schema_defaults)
+from hybrid_force_controller.core.config.schema import ORIENTATION_FIELDS
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.runtime.recovery import RecoveryConfig
 import numpy as np
@@ -36,7 +37,7 @@ def test_schema_names_are_unique_and_match_the_dataclasses():
     names = [s.name for s in CONTROLLER_SCHEMA]
     assert len(names) == len(set(names))
     assert set(ControllerParams.__dataclass_fields__) == {'law', 'runtime', 'stiffness',
-                                                          'recovery', 'normal'}
+                                                          'recovery', 'normal', 'orientation'}
     law = {s.name for s in CONTROLLER_SCHEMA if s.group == 'law'}
     runtime = {s.name for s in CONTROLLER_SCHEMA if s.group == 'runtime'}
     recovery = {s.name for s in CONTROLLER_SCHEMA if s.group == 'recovery'}
@@ -47,6 +48,9 @@ def test_schema_names_are_unique_and_match_the_dataclasses():
     normal = {s.name for s in CONTROLLER_SCHEMA if s.group == 'normal'}
     assert {n.removeprefix('n_') for n in normal - {'n_estimation'}} | {'enabled'} == set(
         NormalConfig.__dataclass_fields__)
+    orientation = {s.name for s in CONTROLLER_SCHEMA if s.group == 'orientation'}
+    assert {ORIENTATION_FIELDS[n] for n in orientation} == set(
+        OrientationConfig.__dataclass_fields__)
 
 
 @pytest.mark.parametrize('spec', CONTROLLER_SCHEMA, ids=lambda s: s.name)

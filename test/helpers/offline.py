@@ -10,7 +10,8 @@ Helpers of the offline tests (no ROS): loops, plants and synthetic signals they 
 * :func:`panda_run` (:data:`SURFACES`, :data:`N_TOLD`): the Panda's square on a tilted or
   curved part, told a flat one (test_normal_closed_loop, the pins);
 * :func:`stiffness_run`, :func:`stiffness_metrics` (:data:`STIFFNESSES`): issue 13's runs
-  (test_stiffness_closed_loop, the pins).
+  (test_stiffness_closed_loop, the pins);
+* :func:`run_with_states`: a scenario and the joint states the controller received.
 """
 from __future__ import annotations
 
@@ -188,3 +189,14 @@ def stiffness_run(model, k, scale, duration=12.0, **kw) -> ScenarioResult:
 def stiffness_metrics(res: ScenarioResult) -> dict:
     """Return the run's metrics from 5 s."""
     return compute_metrics(RunLog.from_result(res), t_start=5.0)
+
+
+def run_with_states(cfg: ScenarioConfig, model) -> tuple[ScenarioResult, np.ndarray, np.ndarray]:
+    """Run ``cfg``; return the result and the (stamp s, q) of every state the controller got."""
+    states: list = []
+
+    def hook(t, msg):
+        states.append((t, msg[0].copy()))
+        return msg
+    result = run_scenario(ScenarioConfig(**{**vars(cfg), 'input_hook': hook}), model)
+    return result, np.array([t for t, _ in states]), np.array([q for _, q in states])

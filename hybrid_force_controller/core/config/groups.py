@@ -1,9 +1,10 @@
 """
 The frozen settings of the stiffness and normal estimates and of the recovery (pure Python).
 
-They are groups of the one schema (schema.py, groups ``stiffness``, ``normal`` and
-``recovery``), built by params.py; the estimators (law/stiffness.py, law/normal_estimate.py)
-and the episodes (runtime/recovery.py) take them. Each validates itself and raises its typed
+They are groups of the one schema (schema.py, groups ``stiffness``, ``normal``, ``recovery``
+and ``orientation``), built by params.py; the estimators (law/stiffness.py,
+law/normal_estimate.py), the episodes (runtime/recovery.py) and the tool's orientation
+(law/orientation.py) take them. Each validates itself and raises its typed
 error naming the field.
 """
 from __future__ import annotations
@@ -11,8 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 import math
 
-__all__ = ['NormalConfig', 'NormalConfigError', 'NormalEstimateError', 'RecoveryConfig',
-           'RecoveryConfigError', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError']
+__all__ = ['NormalConfig', 'NormalConfigError', 'NormalEstimateError', 'ORIENTATION_MODES',
+           'ORIENTATION_NAMES', 'OrientationConfig', 'OrientationConfigError', 'RecoveryConfig',
+           'RecoveryConfigError', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
+           'TOOL_SPINS']
 
 
 class StiffnessError(ValueError):
@@ -201,3 +204,79 @@ class NormalConfig:
             if not (math.isfinite(value) and (value > 0.0 or name == 'velocity_fusion')):
                 raise NormalConfigError(f'{name} must be finite and > 0, got {value}')
             object.__setattr__(self, name, float(value))
+
+
+class OrientationConfigError(ValueError):
+    """A setting of the tool's orientation is rejected; the message names it and says why."""
+
+
+ORIENTATION_MODES = ('free', 'normal', 'moment')
+TOOL_SPINS = ('hold', 'path')
+#: OrientationConfig field -> schema name (the errors name the parameters).
+ORIENTATION_NAMES = {'mode': 'orientation_mode', 'tool_axis': 'tool_axis', 'tilt': 'tool_tilt',
+                     'spin': 'tool_spin', 'lambda_o': 'orientation_lambda',
+                     'k_d': 'orientation_k_d', 'rate_limit': 'orientation_rate_limit',
+                     'error_limit': 'orientation_error_limit', 'moment_gain': 'moment_gain'}
+
+
+@dataclass(frozen=True)
+class OrientationConfig:
+    """
+    Validated settings of the tool's orientation (law/orientation.py, group ``orientation``).
+
+    Attributes
+    ----------
+    mode : ``free`` (the paper: only the tool's position is controlled), ``normal`` (the
+        tool axis held along n_hat, into the surface, or tilted by ``tilt``) or ``moment``
+        (the tilt moments about the two tangent axes regulated to their target: the pad
+        seats itself; the spin as in ``normal``).
+    tool_axis : the tool's axis in the end-effector frame (unit; the way it points at the part).
+    tilt : the axis' tilt from n_hat toward the path's direction of travel, rad.
+    spin : ``hold`` (the spin about the axis kept from the start) or ``path`` (the end
+        effector's x axis turned along the path's direction of travel).
+    lambda_o : the orientation error's gain in the angular reference velocity, 1/s.
+    k_d : the angular damping, the rotational part of K_D of eq. (5), N m s/rad.
+    rate_limit : largest rotation rate of the target, rad/s.
+    error_limit : the orientation error is saturated to this angle, rad.
+    moment_gain : ``moment`` mode's admittance, rad/(s N m).
+
+    """
+
+    mode: str = 'free'
+    tool_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    tilt: float = 0.0
+    spin: str = 'hold'
+    lambda_o: float = 10.0
+    k_d: float = 3.0
+    rate_limit: float = 0.5
+    error_limit: float = 0.3
+    moment_gain: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in ORIENTATION_MODES:
+            raise OrientationConfigError(
+                f'orientation_mode must be one of {list(ORIENTATION_MODES)}, got {self.mode!r}')
+        if self.spin not in TOOL_SPINS:
+            raise OrientationConfigError(
+                f'tool_spin must be one of {list(TOOL_SPINS)}, got {self.spin!r}')
+        axis = [float(c) for c in self.tool_axis]
+        norm = math.sqrt(sum(c * c for c in axis)) if len(axis) == 3 else 0.0
+        if not (math.isfinite(norm) and norm > 1e-9):
+            raise OrientationConfigError(
+                f'tool_axis must be 3 finite numbers, not all 0, got {list(self.tool_axis)}')
+        object.__setattr__(self, 'tool_axis', tuple(c / norm for c in axis))
+        for name in ('tilt', 'lambda_o', 'k_d', 'rate_limit', 'error_limit', 'moment_gain'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value) or value < 0.0:
+                raise OrientationConfigError(
+                    f'{ORIENTATION_NAMES[name]} must be finite and >= 0, got {value!r}')
+            object.__setattr__(self, name, float(value))
+        if not self.tilt <= 0.5:
+            raise OrientationConfigError(
+                f'tool_tilt must be at most 0.5 rad (29 deg), got {self.tilt:g}')
+
+    @property
+    def active(self) -> bool:
+        """Say whether the tool's orientation is controlled (a 6-D task)."""
+        return self.mode != 'free'

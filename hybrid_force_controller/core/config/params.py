@@ -9,8 +9,9 @@ overrides values. :func:`build_params` validates a full set once and freezes it 
 filter, reference, timeouts, approach, sensor plausibility, tool mass, the sensor's offset, a
 user's path) and the online stiffness estimate's (:class:`~.groups.StiffnessConfig`, group
 ``stiffness``), the recovery from stalls and drops (:class:`~.groups.RecoveryConfig`, group
-``recovery``) and the surface-normal estimate's (:class:`~.groups.NormalConfig`, group
-``normal``). Pure Python + numpy.
+``recovery``), the surface-normal estimate's (:class:`~.groups.NormalConfig`, group
+``normal``) and the tool orientation's (:class:`~.groups.OrientationConfig`, group
+``orientation``). Pure Python + numpy.
 """
 from __future__ import annotations
 
@@ -21,10 +22,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .groups import (NormalConfig, NormalConfigError, RecoveryConfig, RecoveryConfigError,
-                     StiffnessConfig, StiffnessConfigError)
-from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, NORMAL_FIELDS, ParamSpec, RECOVERY_FIELDS
-from .schema import STIFFNESS_FIELDS
+from .groups import (NormalConfig, NormalConfigError, OrientationConfig, OrientationConfigError,
+                     RecoveryConfig, RecoveryConfigError, StiffnessConfig, StiffnessConfigError)
+from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, NORMAL_FIELDS, ORIENTATION_FIELDS, ParamSpec
+from .schema import RECOVERY_FIELDS, STIFFNESS_FIELDS
 
 __all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'ControllerParams', 'LawGains', 'ParamSpec',
            'ParameterValidationError', 'RuntimeConfig', 'build_params', 'check_stability',
@@ -104,8 +105,8 @@ class ControllerParams:
     """
     One validated, frozen parameter set.
 
-    The law's gains, the runtime's configuration, the stiffness estimate's, the recovery's and
-    the normal estimate's.
+    The law's gains, the runtime's configuration, the stiffness estimate's, the recovery's, the
+    normal estimate's and the tool orientation's.
     """
 
     law: LawGains
@@ -113,6 +114,7 @@ class ControllerParams:
     stiffness: StiffnessConfig
     recovery: RecoveryConfig = RecoveryConfig()
     normal: NormalConfig = NormalConfig()
+    orientation: OrientationConfig = OrientationConfig()
 
 
 def schema_defaults() -> dict[str, Any]:
@@ -322,7 +324,7 @@ def build_params(model: Any, values: Mapping[str, Any] | None = None) -> Control
     s.update({name: _bool(spec, v[name]) for name, spec in _SPECS.items() if spec.kind == 'bool'})
     return ControllerParams(law=_law_gains(v, s, model), runtime=_runtime_config(v, s, model),
                             stiffness=_stiffness_config(s), recovery=_recovery_config(s),
-                            normal=_normal_config(s))
+                            normal=_normal_config(s), orientation=_orientation_config(v, s, model))
 
 
 def normal_rate_bound(lambda1: float, lambda2: float, k_max: float) -> float:
@@ -353,6 +355,22 @@ def _normal_config(s: Mapping[str, Any]) -> NormalConfig:
     except NormalConfigError as exc:
         msg = re.sub(r'^enabled\b', 'n_estimation', str(exc))
         raise ParameterValidationError(msg if msg != str(exc) else f'n_{exc}') from None
+
+
+def _orientation_config(v: Mapping[str, Any], s: Mapping[str, Any],
+                        model: Any) -> OrientationConfig:
+    """Build the ``orientation`` group; ``normal`` and ``moment`` need a 6-D capable arm."""
+    values = {f: (s[name] if name in s else v[name]) for name, f in ORIENTATION_FIELDS.items()}
+    values['tool_axis'] = tuple(_array('tool_axis', v['tool_axis'], (3,)))
+    try:
+        cfg = OrientationConfig(**values)
+    except OrientationConfigError as exc:
+        raise ParameterValidationError(str(exc)) from None
+    if cfg.active and (model.m != 3 or model.n < 6):
+        raise ParameterValidationError(
+            f'orientation_mode {cfg.mode} needs a spatial arm with 6 joints or more (a 6-D '
+            f'task); this one has {model.n} joint(s) for a {model.m}-D task: use free')
+    return cfg
 
 
 def _recovery_config(s: Mapping[str, Any]) -> RecoveryConfig:

@@ -9,8 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'NORMAL_FIELDS', 'ParamSpec', 'RECOVERY_FIELDS',
-           'STIFFNESS_FIELDS']
+from .groups import ORIENTATION_NAMES
+
+__all__ = ['CONTROLLER_SCHEMA', 'MODEL_SCHEMA', 'NORMAL_FIELDS', 'ORIENTATION_FIELDS', 'ParamSpec',
+           'RECOVERY_FIELDS', 'STIFFNESS_FIELDS']
 
 
 @dataclass(frozen=True)
@@ -20,7 +22,8 @@ class ParamSpec:
 
     Its ROS type (``double``, ``integer``, ``double_array``, ``string_array``, ``string``,
     ``bool``), default, description, closed bounds (``None``: unbounded) and the group it
-    configures (``law``, ``runtime``, ``stiffness``, ``normal`` or ``recovery``).
+    configures (``law``, ``runtime``, ``stiffness``, ``normal``, ``recovery`` or
+    ``orientation``).
     """
 
     name: str
@@ -48,6 +51,10 @@ def _rec(*args: Any, **kwargs: Any) -> ParamSpec:
 
 def _nrm(*args: Any, **kwargs: Any) -> ParamSpec:
     return ParamSpec(*args, group='normal', **kwargs)
+
+
+def _ori(*args: Any, **kwargs: Any) -> ParamSpec:
+    return ParamSpec(*args, group='orientation', **kwargs)
 
 
 _S = ParamSpec
@@ -255,7 +262,36 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _nrm('n_velocity_fusion', 'double', 0.5,
          'Weight of the constraint n perpendicular to the velocity, 0 (off) to 1 (the '
          "force's whole component along the velocity removed).", 0.0, 1.0),
+    # the tool's orientation (law/orientation.py, docs/design.md "The tool square to the part")
+    _ori('orientation_mode', 'string', 'free',
+         'free: only the tool position is controlled (the paper); normal: tool_axis held '
+         'along n (into the surface), tilted by tool_tilt; moment: the tilt moments about the '
+         'two tangent axes regulated to ~/target_wrench torques (0: the pad seats itself '
+         'flat). normal and moment need a spatial arm of 6 joints or more.'),
+    _ori('tool_axis', 'double_array', [0.0, 0.0, 1.0],
+         "The tool's axis in the end-effector frame, pointing at the part; normalised."),
+    _ori('tool_tilt', 'double', 0.0,
+         "The tool axis' tilt from n toward the path's direction of travel (its leading edge "
+         'lifted), rad.', 0.0, 0.5),
+    _ori('tool_spin', 'string', 'hold',
+         'The spin about the tool axis: hold (kept from the start) or path (the end '
+         "effector's x axis along the direction of travel)."),
+    _ori('orientation_lambda', 'double', 10.0,
+         'Gain of the orientation error (SO(3) log) in the angular reference velocity, 1/s.',
+         0.0, 1e3),
+    _ori('orientation_k_d', 'double', 3.0,
+         'Angular damping, the rotational part of K_D of eq. (5), N m s/rad.', 0.0, 1e4),
+    _ori('orientation_rate_limit', 'double', 0.5,
+         "Largest rotation rate of the tool's target orientation, rad/s.", 0.0, 100.0,
+         positive=True),
+    _ori('orientation_error_limit', 'double', 0.3,
+         'The orientation error is saturated to this angle, rad.', 0.0, 3.0, positive=True),
+    _ori('moment_gain', 'double', 5.0,
+         "orientation_mode moment: the admittance turning the tool with the tilt moment's "
+         'error, rad/(s N m).', 0.0, 1e3),
 )
+#: schema name -> OrientationConfig field.
+ORIENTATION_FIELDS = {name: field for field, name in ORIENTATION_NAMES.items()}
 #: schema name -> RecoveryConfig field.
 RECOVERY_FIELDS = {s.name: 'enabled' if s.name == 'episode_recovery' else s.name
                    for s in CONTROLLER_SCHEMA if s.group == 'recovery'}

@@ -69,9 +69,10 @@ import numpy as np
 from .adaptation import adapt_theta, adaptation_weight
 from .law_io import ApproachRef, ControlError, ControlOutput
 from .moving_normal import MovingNormal
+from .orientation import OrientationRef
 from .reference import Reference
 from ..config.params import LawGains
-from ..model.linalg import damped_inverse, small_inverse
+from ..model.linalg import damped_inverse, sigma_min_sq_bound, small_inverse
 from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
@@ -114,6 +115,8 @@ class HybridForceController:
         self._moving: MovingNormal | None = None  # a moving normal (set_normal), else d.n
         self.h = 0.0
         self.damped = False  # the last step used a damped inverse (a pose near a singularity)
+        self.e_w: np.ndarray | None = None  # the last step's angular error (the 6-D task), rad/s
+        self._r6 = (np.zeros(6), np.zeros(6))  # the 6-D task's r and rdot, filled in place
         self.set_gains(gains)
         self.reset()
 
@@ -285,7 +288,8 @@ class HybridForceController:
     def step(self, q: np.ndarray, qdot: np.ndarray, f_W: np.ndarray, ref: Reference,
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
              r_bias: tuple[float, float] = (0.0, 0.0),
-             kin: TaskKinematics | None = None, adapt: bool = True) -> ControlOutput:
+             kin: TaskKinematics | None = None, adapt: bool = True,
+             rot: OrientationRef | None = None, k_w: float = 0.0) -> ControlOutput:
         """
         One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
 
@@ -309,32 +313,42 @@ class HybridForceController:
             ``model.kinematics(q, qdot)`` when the caller has it already.
         adapt : bool
             False freezes theta_hat (a fault episode); h still integrates. It also holds
-            near a singularity (``damped``: the smallest singular value of a square arm's J
-            below ``singular_sigma``), where J is inverted damped (linalg.damped_inverse).
+            near a singularity (``damped``: the smallest singular value of J below
+            ``singular_sigma``), where J is inverted damped (linalg.damped_inverse).
+        rot : OrientationRef, optional
+            The angular reference of the 6-D task (orientation.py): omega_r and its rate are
+            stacked under r and rdot, J_w under J; None: the translational task of [1].
+        k_w : float
+            With ``rot``: the angular damping, N m s/rad.
 
         Returns
         -------
         ControlOutput
-            With ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e)`` (eq. 5 in joint space).
+            With ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e) [+ J_w^T (m - k_w e_w)]``
+            (eq. 5 in joint space).
 
         """
         if not (dt >= 0.0 and math.isfinite(dt)):
             raise ControlError(f'dt must be finite and >= 0, got {dt}')
-        d = self._d
-        g, model = d.gains, self.model
+        g, model = self._d.gains, self.model
         kin = model.kinematics(q, qdot) if kin is None else kin
         f = f_W[model.task_index]
         r, rdot, df_n, r_n, rdot_n = self.reference_velocity(kin, ref, f, approach, r_bias)
         e = kin.xdot - r
-        if model.redundant:
-            (J_pinv, N), self.damped = self._pinv(q, kin.J_ee), False
-        else:  # damped near a singularity, where theta_hat holds (damped_inverse)
-            (J_pinv, self.damped), N = damped_inverse(kin.J_ee, g.singular_sigma), None
+        J, Jdot = (kin.J_ee, kin.Jdot_ee) if rot is None else (kin.J6, kin.Jdot6)
+        if rot is not None:  # the 6-D task: [r; omega_r], [rdot; omegadot_r]
+            r6, rdot6 = self._r6
+            r6[:3], r6[3:], rdot6[:3], rdot6[3:] = r, rot.omega_r, rdot, rot.omegadot_r
+            r, rdot = r6, rdot6
+        J_pinv, N = self._inverse(q, J, g.singular_sigma)
         qdot_r = J_pinv.dot(r)
-        qddot_r = J_pinv.dot(rdot - kin.Jdot_ee.dot(qdot_r))
+        qddot_r = J_pinv.dot(rdot - Jdot.dot(qdot_r))
         Y_q, tau_0 = model.regressor_affine(q, qdot, qdot_r, qddot_r)
         s = qdot - qdot_r  # = J^-1 e for a square J
         tau = Y_q.dot(self.theta_hat) + kin.J_ee.T.dot(f - g.k_d * e)
+        self.e_w = None if rot is None else rot.omega_W - rot.omega_r
+        if rot is not None:
+            tau += kin.J_w.T.dot(rot.m_W - k_w * self.e_w)
         if tau_0 is not None:
             tau += tau_0
         if N is not None:  # null-space posture damping
@@ -344,11 +358,26 @@ class HybridForceController:
         if dt > 0.0:
             if approach is not None:  # adapt on the motion along the surface only
                 n = self.n
-                s = J_pinv @ (e - n * float(n @ e))
+                e_t = e - n * float(n @ e)
+                s = J_pinv @ (e_t if rot is None else np.concatenate((e_t, self.e_w)))
             self._integrate(Y_q, s * adaptation_weight(e, g.adapt_error_limit, g.adapt_dead_zone)
                             if adapt and not self.damped else None, df_n, dt,
                             in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
+
+    def _inverse(self, q: np.ndarray, J: np.ndarray,
+                 sigma0: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """
+        Return J's inverse (damped near a singularity, ``self.damped``) and N (redundant arms).
+
+        A square J: linalg.damped_inverse. More joints than rows: the dynamically consistent
+        inverse of :meth:`_pinv`, damped the same way.
+        """
+        if J.shape[1] > J.shape[0]:
+            J_pinv, N, self.damped = self._pinv(q, J, sigma0)
+            return J_pinv, N
+        J_pinv, self.damped = damped_inverse(J, sigma0)
+        return J_pinv, None
 
     def _integrate(self, Y_q: np.ndarray, s: np.ndarray | None, df_n: float, dt: float,
                    force_loop: bool) -> None:
@@ -370,16 +399,28 @@ class HybridForceController:
         else:
             self.h = min(self.h, 0.0)
 
-    def _pinv(self, q: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """
-        Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1`` and ``N``.
+    def _pinv(self, q: np.ndarray, J: np.ndarray,
+              sigma0: float) -> tuple[np.ndarray, np.ndarray, bool]:
+        r"""
+        Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1``, ``N`` and ``damped``.
 
         For redundant arms (joints > task dimension) eqs. (35)-(37) generalise with Jbar in
         place of J^-1: ``qdot_r = Jbar r``, ``qddot_r = Jbar (rdot - Jdot qdot_r)`` (the
         derivative of Jbar is neglected), and ``N = I - Jbar J`` projects onto motions that
         leave the end effector still; ``-k_null N^T N s`` damps them. M is the URDF inertia.
+
+        Near a singularity it is damped as linalg.damped_inverse damps a square J, in the metric
+        of M^-1 (:math:`\bar m^{-1} = \operatorname{tr} M^{-1} / n`; for ``M = m I`` exactly damped
+        least squares): with :math:`\tilde\sigma^2` the lower bound of J's smallest squared
+        singular value of linalg.sigma_min_sq_bound, below ``sigma0``
+        :math:`\bar J = M^{-1} J^T (J M^{-1} J^T + \mu^2 \bar m^{-1} I)^{-1}`,
+        :math:`\mu^2 = \sigma_0^2 - \tilde\sigma^2`; theta_hat then holds.
         """
         M_inv = self.model.inertia_inverse(q)
         JM = J.dot(M_inv)
-        J_pinv = JM.T.dot(small_inverse(JM.dot(J.T)))
-        return J_pinv, self._eye_n - J_pinv.dot(J)
+        A = JM.dot(J.T)
+        mu2 = sigma0 * sigma0 - sigma_min_sq_bound(J) if sigma0 > 0.0 else 0.0
+        if mu2 > 0.0:
+            A[np.diag_indices_from(A)] += mu2 * sum(M_inv.diagonal().tolist()) / len(M_inv)
+        J_pinv = JM.T.dot(small_inverse(A))
+        return J_pinv, self._eye_n - J_pinv.dot(J), mu2 > 0.0

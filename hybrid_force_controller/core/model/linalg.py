@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-__all__ = ['damped_inverse', 'sigma_min_sq', 'small_inverse']
+__all__ = ['damped_inverse', 'sigma_min_sq', 'sigma_min_sq_bound', 'small_inverse']
 
 
 def small_inverse(A: np.ndarray) -> np.ndarray:
@@ -45,6 +45,27 @@ def sigma_min_sq(J: np.ndarray) -> float:
         det, F = a * d - b * c, a * a + b * b + c * c + d * d
         return 2.0 * det * det / (F + math.sqrt(max(F * F - 4.0 * det * det, 0.0)) or 1.0)
     return float(np.linalg.eigvalsh(J.dot(J.T))[0])
+
+
+def sigma_min_sq_bound(J: np.ndarray) -> float:
+    r"""
+    Return a lower bound of the smallest squared singular value of ``J`` (m x n, m <= n).
+
+    It is :math:`1 / \operatorname{tr}((J J^T)^{-1}) = 1 / \sum_i \sigma_i^{-2}`, within a
+    factor m of it (tight near a singularity, where one term dominates the sum). For m = 3 in
+    closed form, ``det / (sum of the principal 2 x 2 minors)`` of ``J J^T`` (no
+    eigen-decomposition on the 1 kHz path); 0 at a singular J.
+    """
+    G = J.dot(J.T)
+    if G.shape == (3, 3):
+        (a, b, c), (_, e, f), (_, _, i) = G.tolist()
+        minors = (e * i - f * f) + (a * i - c * c) + (a * e - b * b)
+        det = a * (e * i - f * f) - b * (b * i - f * c) + c * (b * f - e * c)
+        return max(det, 0.0) / minors if minors > 0.0 else 0.0
+    try:
+        return 1.0 / float(sum(np.linalg.inv(G).diagonal().tolist()))
+    except np.linalg.LinAlgError:
+        return 0.0
 
 
 def damped_inverse(J: np.ndarray, sigma0: float) -> tuple[np.ndarray, bool]:

@@ -52,6 +52,9 @@ class TaskKinematics(NamedTuple):
     xdot : (m,) task velocity, x_dot = J q_dot.
     J_ee : (m, n) task Jacobian, eq. (31) of [1].
     Jdot_ee : (m, n) its time derivative along q_dot.
+    J_w : (3, n) angular Jacobian, ``omega_W = J_w q_dot`` (the 6-D task, orientation.py).
+    Jdot_w : (3, n) its time derivative along q_dot.
+    J6, Jdot6 : (6, n) the linear rows over the angular ones, W (J_w, Jdot_w are views).
 
     """
 
@@ -61,6 +64,10 @@ class TaskKinematics(NamedTuple):
     xdot: np.ndarray
     J_ee: np.ndarray
     Jdot_ee: np.ndarray
+    J_w: np.ndarray | None = None
+    Jdot_w: np.ndarray | None = None
+    J6: np.ndarray | None = None
+    Jdot6: np.ndarray | None = None
 
 
 class RobotModel:
@@ -179,20 +186,25 @@ class RobotModel:
         Task position, velocity, Jacobian and its derivative, eqs. (30)-(31) of [1].
 
         Uses pinocchio's ``computeJointJacobiansTimeVariation`` in the LOCAL_WORLD_ALIGNED
-        frame, whose linear rows are d p_W / dq and their time derivative. Every array is new
-        (the simulator shares this model's pinocchio data).
+        frame, whose linear rows are d p_W / dq and their time derivative, and whose angular
+        rows give ``J_w`` and ``Jdot_w``. Every array is new (the simulator shares this model's
+        pinocchio data).
         """
         model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
         pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
         T_root_ee = pin.updateFramePlacement(model, data, fid)
-        J = pin.getFrameJacobian(model, data, fid, _LWA)
-        Jdot = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)
-        if self._R_W_root is None:  # base_link is the root: the task rows as they are
-            p_W, R, J, Jdot = T_root_ee.translation, T_root_ee.rotation, J[ax], Jdot[ax]
+        J6 = pin.getFrameJacobian(model, data, fid, _LWA)
+        Jdot6 = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)
+        R_W_root = self._R_W_root
+        if R_W_root is None:  # base_link is the root: the task rows as they are
+            p_W, R = T_root_ee.translation, T_root_ee.rotation
         else:  # express everything in base_link
-            p_W, R, J = self.base_from_root(T_root_ee.translation, T_root_ee.rotation, J[:3])
-            J, Jdot = J[ax], self._R_W_root.dot(Jdot[:3])[ax]
-        return TaskKinematics(p_W, R, p_W[ax], J.dot(qdot), J, Jdot)
+            p_W, R, _ = self.base_from_root(T_root_ee.translation, T_root_ee.rotation, J6[:3])
+            J6 = np.vstack((R_W_root.dot(J6[:3]), R_W_root.dot(J6[3:])))
+            Jdot6 = np.vstack((R_W_root.dot(Jdot6[:3]), R_W_root.dot(Jdot6[3:])))
+        J = J6[ax]
+        return TaskKinematics(p_W, R, p_W[ax], J.dot(qdot), J, Jdot6[ax], J6[3:], Jdot6[3:],
+                              J6, Jdot6)
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:

@@ -54,6 +54,7 @@ from .runtime_interface import RuntimeInterface
 from .surface import SurfaceNormal
 from ..config.params import ControllerParams
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
+from ..law.orientation import OrientationRef, ToolOrientation
 from ..law.reference import Reference
 from ..law.set_validation import SetValidator
 from ..law.stiffness_loop import StiffnessLoop
@@ -90,6 +91,7 @@ class ControllerRuntime(RuntimeInterface):
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self._normal = SurfaceNormal(params, model.task_axes)  # n, or n_hat (surface.py)
+        self.orientation = ToolOrientation(params.orientation)  # the 6-D task (orientation.py)
         self.validator = SetValidator(model)
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
         self._restarted = False  # a restart's episode begins at the next start
@@ -114,6 +116,10 @@ class ControllerRuntime(RuntimeInterface):
 
     def _install(self, params: ControllerParams) -> None:
         rt = params.runtime
+        if params.orientation.mode != self.orientation.cfg.mode:
+            self.orientation.reset()  # a new mode holds the orientation of its start
+        self.orientation.configure(params.orientation)
+        self._in.moment_wanted = params.orientation.active
         self._params = params
         self.ctrl.set_gains(params.law)
         self._stiffness.configure(params.stiffness, params.law.n, self.ctrl)
@@ -169,7 +175,9 @@ class ControllerRuntime(RuntimeInterface):
             out = self.ctrl.step(self._in.state.q, self._in.state.qdot, f_W, ref, dt_int,
                                  in_contact=in_contact(f_n, self.ctrl.f_d),
                                  approach=approach, r_bias=self._handover_bias(),
-                                 kin=self._in.kin(), adapt=not self.recovery.frozen)
+                                 kin=self._in.kin(), adapt=not self.recovery.frozen,
+                                 rot=self._rotation(ref, dt_state, touching),
+                                 k_w=self._params.orientation.k_d)
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)
@@ -180,6 +188,20 @@ class ControllerRuntime(RuntimeInterface):
         self._motion.r_n, self._motion.rdot_n = out.r_n, out.rdot_n
         self._observe(t, f_n, out.e, touching)
         return self._running_output(out.tau, out, ref, f_W)
+
+    def _rotation(self, ref: Reference, dt: float, touching: bool) -> OrientationRef | None:
+        """
+        Return the angular reference of the 6-D task (None: orientation_mode free).
+
+        ``moment`` regulates the tilt moments only while touching (out of contact the pad is
+        held square to n_hat, as in ``normal``).
+        """
+        if not self._params.orientation.active:
+            return None
+        kin, s = self._in.kin(), self._in.state
+        return self.orientation.reference(kin.R_W_ee, kin.J_w.dot(s.qdot), self._normal.n_W,
+                                          ref.xdot_d_W, self._in.filtered_moment(), dt,
+                                          touching)
 
     def _transitions(self, touching: bool, stalled: bool, f_W: np.ndarray, t: float) -> None:
         """Change mode on contact, a (re)start or a stall; begin the episodes they start."""
@@ -277,6 +299,7 @@ class ControllerRuntime(RuntimeInterface):
         self._contact.reset()
         self._command.restart(blend=False)
         self.ctrl.reset(self.ctrl.theta_hat)
+        self.orientation.reset()
 
     def restart(self) -> None:
         """
@@ -288,6 +311,7 @@ class ControllerRuntime(RuntimeInterface):
         self.mode = Mode.WAITING
         self._command.restart(blend=True)
         self._restarted = True
+        self.orientation.reset()
 
     # ------------------------------------------------------------------ episodes (recovery.py)
     def _stalled(self, t: float) -> bool:

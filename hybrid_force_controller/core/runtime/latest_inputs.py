@@ -4,7 +4,8 @@ The runtime's latest inputs: checked samples, their staleness, the filtered forc
 :class:`LatestInputs` keeps the newest joint state and wrench that passed the checks of
 inputs.py, computes the kinematics once per joint state, rotates each new wrench into the base
 frame (less the tool's weight, ``tool_mass``: tool_gravity.py) and low-pass filters it over the
-wrench stamps, and says when the inputs are too old to act on. Every reading first loses the
+wrench stamps (with ``moment_wanted``, the 6-D task, its torque too, less the weight's about
+``tool_com``), and says when the inputs are too old to act on. Every reading first loses the
 sensor's bias (``wrench_offset``, sensor frame), which a tare (tare.py) measures from the raw
 readings. Rejected samples are counted in
 the caller's counters and raise the typed error. Times are seconds on the caller's clock.
@@ -28,7 +29,7 @@ from .sender_clock import ImplausibleStamp, SenderClock
 from .tare import still, Tare
 from ..config.params import RuntimeConfig
 from ..model.robot_model import RobotModel, TaskKinematics
-from ..model.tool_gravity import tool_weight_W
+from ..model.tool_gravity import tool_weight_S, tool_weight_W
 
 __all__ = ['LatestInputs']
 
@@ -48,6 +49,9 @@ class LatestInputs:
         self._kin_of: JointSample | None = None  # the state _kin_cached belongs to
         self._kin_cached: TaskKinematics | None = None
         self._wrench_prev_t, self._new_wrench = -math.inf, False
+        self._torque_S: np.ndarray | None = None  # the accepted wrench's torque (None: none)
+        self._moment = LowPassFilter(rt.force_filter_hz)  # m_W, filtered as f_W
+        self.moment_wanted = False  # the torque is decoded and filtered (the 6-D task)
         self.tare: Tare | None = None  # a tare under way (it takes the raw readings)
         self.configure(rt)
 
@@ -68,6 +72,7 @@ class LatestInputs:
         R_W_root = self.model.base_from_root(np.zeros(3), np.eye(3), np.zeros((3, 0)))[1]
         g_W = R_W_root @ self.model.model.gravity.linear
         self._weight_W = tool_weight_W(rt.tool_mass, g_W)  # None: no tool to compensate
+        self._g_W, self._tool = g_W, (rt.tool_mass, rt.tool_com)
         offset = rt.wrench_offset  # the sensor's bias (0: none, nothing subtracted)
         self._offset = tuple(float(c) for c in offset) if np.any(offset) else None
         if rt.force_filter_hz != self.filter.cutoff_hz:
@@ -75,12 +80,14 @@ class LatestInputs:
             self.filter = LowPassFilter(rt.force_filter_hz)
             if ready:
                 self.filter.update(value, 0.0)
+            self._moment = LowPassFilter(rt.force_filter_hz)
 
     def reset(self) -> None:
         """Forget every input (a backward time jump)."""
         self.state = self.wrench = None
         self.gate.reset()
         self.filter.reset()
+        self._moment.reset()
         for clock in self.clocks.values():
             clock.reset()
 
@@ -100,13 +107,20 @@ class LatestInputs:
             self._fault('joint_state_dropped', exc)
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float,
-                  t_recv: float | None = None) -> None:
-        """Store the force the environment exerts on the tool, expressed in ``frame_id``."""
+                  t_recv: float | None = None, torque: Sequence[float] | None = None) -> None:
+        """
+        Store the force (and torque) the environment exerts on the tool, in ``frame_id``.
+
+        The torque is about the frame's origin; a reading whose torque is not 3 finite numbers
+        is refused whole (the sensor is broken).
+        """
         raw = force
         if self._offset is not None and len(force) == 3:
             ox, oy, oz = self._offset
             force = (force[0] - ox, force[1] - oy, force[2] - oz)
         try:
+            if torque is not None:
+                torque = _torque(torque) if self.moment_wanted else None
             if t_recv is not None:
                 t = self._wrench_clock.receive(t, t_recv)
             sample = self.gate.check(frame_id, force, t)
@@ -118,6 +132,7 @@ class LatestInputs:
             self._fault('wrench_dropped', exc)
         self._wrench_prev_t = -math.inf if self.wrench is None else self.wrench.t
         self.wrench, self._new_wrench = sample, True
+        self._torque_S = torque
         if self.tare is not None:
             self._feed_tare(raw, t)
 
@@ -172,9 +187,29 @@ class LatestInputs:
             if self._weight_W is not None:  # the sensor feels the tool's weight: remove it
                 f_W = f_W + self._weight_W
             gap = w.t - self._wrench_prev_t
-            self.filter.update(f_W, gap if 0.0 < gap < 10.0 * self._period else self._period)
+            gap = gap if 0.0 < gap < 10.0 * self._period else self._period
+            self.filter.update(f_W, gap)
+            if self._torque_S is not None:
+                self._moment.update(self._moment_W(R, self._torque_S), gap)
             self._new_wrench = False
         return self.filter.value
+
+    def _moment_W(self, R: np.ndarray | None, T_S: np.ndarray) -> np.ndarray:
+        """
+        Return the moment the tool exerts on the part about the sensor's origin, W.
+
+        ``m_W = -R_W_S (T_S - c_S x F_g)``: the sensor's torque less the tool weight's
+        (tool_gravity.py; 0 without a tool mass).
+        """
+        mass, com_S = self._tool
+        if mass != 0.0:
+            R_W_S = np.eye(3) if R is None else R
+            T_S = T_S - tool_weight_S(mass, com_S, R_W_S, self._g_W)[1]
+        return -T_S if R is None else -R.dot(T_S)
+
+    def filtered_moment(self) -> np.ndarray:
+        """Return m_W filtered as f_W (zeros before any torque; after filtered_force)."""
+        return self._moment.value if self._moment.ready else np.zeros(3)
 
     def stale(self, t: float) -> str:
         """Say why the inputs are too old to act on at ``t`` ('' when they are fresh)."""
@@ -189,3 +224,11 @@ class LatestInputs:
                     'state_timeout: safe mode' if t - self.wrench.t <= timeout else
                     'wrench older than state_timeout: safe mode')
         return ''
+
+
+def _torque(torque: Sequence[float]) -> np.ndarray:
+    """Return a wrench's torque as an array; InputError unless 3 finite numbers."""
+    T = np.array([float(c) for c in torque])
+    if T.shape != (3,) or not np.all(np.isfinite(T)):
+        raise InputError(f'wrench torque is not 3 finite numbers: {list(torque)}')
+    return T

@@ -70,9 +70,13 @@ class RuntimeInterface:
             self.validator.note_pose(self._in.state.q)
 
     def on_wrench(self, frame_id: str, force: Sequence[float], t: float,
-                  t_recv: float | None = None) -> None:
-        """Store the force the environment exerts on the tool, in ``frame_id`` (t_recv: above)."""
-        self._in.on_wrench(frame_id, force, t, t_recv)
+                  t_recv: float | None = None, torque: Sequence[float] | None = None) -> None:
+        """
+        Store the force the environment exerts on the tool, in ``frame_id`` (t_recv: above).
+
+        ``torque`` (about the frame's origin) is used by the 6-D task (``orientation_mode``).
+        """
+        self._in.on_wrench(frame_id, force, t, t_recv, torque)
 
     def clock_offsets(self) -> dict[str, float]:
         """Return each input stream's measured clock offset, s (NaN before it is measured)."""
@@ -100,6 +104,13 @@ class RuntimeInterface:
         if x.shape != (3,) or not np.all(np.isfinite(x)):
             raise InputError(f'reference must be 3 finite numbers, got {x.tolist()}')
         self._motion.hold(self.run_time, x)
+
+    def on_moment_target(self, m_d_W: Sequence[float]) -> None:
+        """Regulate the tilt moments to ``m_d_W`` (N m, base frame; orientation_mode moment)."""
+        m = np.asarray(m_d_W, dtype=float)
+        if m.shape != (3,) or not np.all(np.isfinite(m)):
+            raise InputError(f'moment target must be 3 finite numbers, got {m.tolist()}')
+        self.orientation.set_moment_target(m)
 
     def on_path(self, plan: PathPlan | None, seq: int = 0) -> None:
         """

@@ -43,6 +43,7 @@ class WrenchData(NamedTuple):
     stamp_s: float
     frame_id: str
     force: tuple[float, float, float]
+    torque: tuple[float, float, float]
 
 
 _STRUCT = {fmt: struct.Struct(fmt) for fmt in ('<I', '<iI', '<II', '<3d', '<d')}
@@ -107,11 +108,12 @@ def read_joint_state(buf: bytes) -> JointStateData:
 
 
 def read_wrench_stamped(buf: bytes) -> WrenchData:
-    """Read stamp, frame and force of a serialized WrenchStamped."""
+    """Read stamp, frame, force and torque of a serialized WrenchStamped."""
     r = _Reader(buf)
     stamp = r.stamp()
     frame_id = r.string()
-    return WrenchData(stamp, frame_id, r._take('<3d', 8))
+    force = r._take('<3d', 8)
+    return WrenchData(stamp, frame_id, force, r._take('<3d', 8))
 
 
 def read_float64_array(buf: bytes) -> np.ndarray:

@@ -110,6 +110,7 @@ class ControlLoop:
         self._reference: deque = deque(maxlen=1)
         self._tare: deque = deque(maxlen=1)
         self._path: deque = deque(maxlen=1)
+        self._moment: deque = deque(maxlen=1)
         self.latest: tuple | None = None  # (TickOutput, stamp ns) of the last commanding tick
         self._mode = None
         self._t_state, self._t_tick = 0.0, -1.0
@@ -175,6 +176,10 @@ class ControlLoop:
     def hold_reference(self, x_d_W: Sequence[float]) -> None:
         """Hold a user reference point from the next tick on."""
         self._reference.append(tuple(x_d_W))
+
+    def set_moment_target(self, m_d_W: Sequence[float]) -> None:
+        """Regulate the tilt moments to ``m_d_W`` (N m, base frame) from the next tick on."""
+        self._moment.append(tuple(m_d_W))
 
     def follow_path(self, plan: Any, seq: int) -> None:
         """Follow a planned path (None: stop and hold) from the next tick on."""
@@ -249,6 +254,8 @@ class ControlLoop:
             self.runtime.start_tare(self._tare.popleft())
         if self._path:
             self.runtime.on_path(*self._path.popleft())
+        if self._moment:
+            self.runtime.on_moment_target(self._moment.popleft())
 
     def _on_joint_state(self, raw: bytes) -> None:
         """
@@ -272,7 +279,7 @@ class ControlLoop:
         msg = read_wrench_stamped(raw)
         t_recv = self._now()
         t = msg.stamp_s if msg.stamp_s > 0.0 else t_recv
-        self.runtime.on_wrench(msg.frame_id, msg.force, t, t_recv)
+        self.runtime.on_wrench(msg.frame_id, msg.force, t, t_recv, msg.torque)
 
     def _on_timer(self) -> None:
         if self.active:

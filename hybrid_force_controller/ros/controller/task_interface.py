@@ -5,7 +5,9 @@ The user's task inputs of the controller node, on the node's thread (never the c
 * ``~/target_wrench`` (geometry_msgs/WrenchStamped, base frame), as FZI's force controller
   takes it: its force along n (the normal in use: n_hat with ``n_estimation``) is the force
   the tool should exert on the surface, so it sets the ``f_d`` parameter (validated, and
-  ramped at ``f_d_rate``, like ``ros2 param set f_d``).
+  ramped at ``f_d_rate``, like ``ros2 param set f_d``); its torque (N m, base frame) is the
+  target of the tilt moments about the tool's centre with ``orientation_mode`` moment (its
+  part along n unused; 0 until a target arrives: the pad seats itself flat).
 * ``~/tare`` (std_srvs/Trigger): average the raw force reading over ``tare_time`` with the tool
   still and off the surface, then store the sensor's bias in ``wrench_offset`` (a parameter:
   ``ros2 param dump`` saves it, a restart from the dump keeps it). The call answers when the
@@ -77,10 +79,13 @@ class TaskInterface:
 
     def _on_target_wrench(self, msg: WrenchStamped) -> None:
         self._base_frame(msg.header.frame_id, 'target_wrench')
-        f = msg.wrench.force
-        force = (f.x, f.y, f.z)
-        if not all(math.isfinite(x) for x in force):
-            raise InputError(f'target_wrench force must be finite, got {list(force)}')
+        f, m = msg.wrench.force, msg.wrench.torque
+        force, torque = (f.x, f.y, f.z), (m.x, m.y, m.z)
+        if not all(math.isfinite(x) for x in force + torque):
+            raise InputError(f'target_wrench must be finite, got force {list(force)}, torque '
+                             f'{list(torque)}')
+        if self.node.loop is not None:  # the tilt moments' target (orientation_mode moment)
+            self.node.loop.set_moment_target(torque)
         latest = self.node.loop.latest if self.node.loop is not None else None
         n = latest[0].n_W if latest is not None and latest[0].n_W is not None else None
         n = self.node.params.law.n if n is None else n  # the normal in use: n, or n_hat

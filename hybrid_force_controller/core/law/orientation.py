@@ -1,0 +1,207 @@
+r"""
+The tool's orientation: the angular half of the 6-D task (``orientation_mode`` normal|moment).
+
+The translation keeps the paper's law (control_law.py). Here the angular reference velocity
+``omega_r`` and its rate come from the target orientation, the way eq. (11)'s free part
+``xdot_d - lambda1 dx`` comes from the path; the law stacks them under r and rdot, inverts the
+6-D Jacobian, and eq. (26) adapts theta_hat on the whole 6-D ``s = qdot - qdot_r``
+(docs/design.md, "The tool square to the part").
+
+Frames: ``_W`` the base frame, ``_ee`` the end-effector frame; ``R = R_W_ee``; ``a_ee`` the
+tool axis (``tool_axis``), ``a_W = R a_ee``; ``n_hat`` points into the surface. Every angular
+velocity is in W.
+
+Target (``normal`` and ``moment``). The target axis ``a* = cos(beta) n_hat + sin(beta) t``
+(``beta = tool_tilt``; ``t`` the path's direction of travel in the tangent plane, its last
+one kept when the path is still, turned about n so that the axis moves along the tilt's cone
+at ``orientation_rate_limit`` at most through a corner); the axis in use ``a_d`` turns toward
+``a*`` at ``orientation_rate_limit`` at most (it starts at the tool's own axis: no jump at
+activation).
+The target rotation moves the orientation held at the start ``R_0`` by the shortest turn from
+its axis onto ``a_d``, ``R_d = align(R_0 a_ee, a_d) R_0`` (``tool_spin`` hold), or, with
+``tool_spin`` path, also turns it about ``a_d`` until the end effector's x axis lies along t.
+
+Error on SO(3), eq. (O1): ``phi = log(R_d R^T)`` (the rotation vector taking the tool onto the
+target, W), saturated to ``orientation_error_limit``, and ``omega_d`` the target's own rate
+(the log of its change over the tick, divided by dt). Then::
+
+    normal:  omega_r    = omega_d + lambda_o phi                                     (O2)
+             omegadot_r = lambda_o (omega_d - omega)
+    moment:  omega_r    = P_n (omega_d + lambda_o phi) - g_m P_t (m_W - m_d)          (O3)
+             omegadot_r = P_n lambda_o (omega_d - omega)
+
+with ``P_n = n n^T``, ``P_t = I - P_n``, ``m_W`` the moment the tool exerts on the part about the
+sensor (the pad's centre), ``m_d`` its target, ``g_m = moment_gain``. With ``e_w = omega -
+omega_r`` driven to 0 by the law, (O2) gives ``phidot = -lambda_o phi`` to first order: the
+tool turns onto its target exponentially at ``lambda_o`` (the same first-order tracking as the
+translation's ``lambda1``). In (O3) the tool turns with the moment the part exerts on it, an
+admittance: a pad on its rim rotates until the moment about its centre is ``m_d``. omegadot_r
+omits ``omegadot_d`` (the target turns at most ``orientation_rate_limit``) and, in moment mode,
+the moment's rate. Pure numpy; time is an argument.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ..config.groups import OrientationConfig
+from ..model.rotations import align, angle_between, so3_log, turn_toward
+
+__all__ = ['OrientationRef', 'ToolOrientation']
+
+MIN_TRAVEL_SPEED = 1e-3  # m/s: slower than this along the surface, t keeps its last direction
+
+
+class OrientationRef(NamedTuple):
+    """
+    One tick's angular reference, W.
+
+    omega_r and its rate, the moment fed forward (N m), the error phi of (O1) (rad) and the
+    tool's angular velocity omega (rad/s) it was computed at.
+    """
+
+    omega_r: np.ndarray
+    omegadot_r: np.ndarray
+    m_W: np.ndarray
+    phi: np.ndarray
+    omega_W: np.ndarray
+
+
+class ToolOrientation:
+    """The target orientation and the angular reference velocity of (O2)/(O3)."""
+
+    def __init__(self, cfg: OrientationConfig) -> None:
+        self.configure(cfg)
+        self.reset()
+
+    def configure(self, cfg: OrientationConfig) -> None:
+        """Install validated settings; the target goes on from where it is."""
+        self.cfg = cfg
+        self._a_ee = np.array(cfg.tool_axis)
+
+    def reset(self) -> None:
+        """Forget the target: the next call holds the tool's orientation of then (its start)."""
+        self.R_0: np.ndarray | None = None  # the orientation held at the start
+        self.a_d: np.ndarray | None = None  # the target axis in use (rate-limited)
+        self.R_d: np.ndarray | None = None
+        self.t_W: np.ndarray | None = None  # the last direction of travel
+        self._tilt_dir: np.ndarray | None = None  # the tilt's direction (rate-limited)
+        self._omega_d = np.zeros(3)
+        self.m_d_W = np.zeros(3) if not hasattr(self, 'm_d_W') else self.m_d_W
+
+    def set_moment_target(self, m_d_W: np.ndarray) -> None:
+        """Use the tilt-moment target ``m_d_W`` (N m, W; its part along n is unused)."""
+        self.m_d_W = np.array(m_d_W, dtype=float)
+
+    def axis_W(self, R_W_ee: np.ndarray) -> np.ndarray:
+        """Return the tool axis in W at ``R_W_ee``."""
+        return R_W_ee.dot(self._a_ee)
+
+    def reference(self, R_W_ee: np.ndarray, omega_W: np.ndarray, n_W: np.ndarray,
+                  xdot_d_W: np.ndarray, m_W: np.ndarray, dt: float,
+                  touching: bool = True) -> OrientationRef:
+        """
+        Return (O2) or (O3) at this tick; the target moves by ``dt`` (s, >= 0; 0: it stays).
+
+        ``n_W`` the normal in use (unit, into the surface), ``xdot_d_W`` the reference velocity
+        (its part along the surface gives the direction of travel), ``m_W`` the moment the tool
+        exerts on the part (N m, W). ``moment`` mode applies (O3) only while ``touching``
+        (otherwise (O2)).
+        """
+        cfg = self.cfg
+        if self.R_0 is None:  # the start: the target is where the tool is
+            self.R_0, self.a_d, self.R_d = R_W_ee.copy(), self.axis_W(R_W_ee), R_W_ee.copy()
+            self._a_0 = self.a_d.copy()  # R_0's axis
+        if dt > 0.0:
+            self._advance(n_W, xdot_d_W, dt)
+        phi = so3_log(self.R_d.dot(R_W_ee.T))
+        size = math.sqrt(float(phi.dot(phi)))
+        if size > cfg.error_limit:
+            phi *= cfg.error_limit / size
+        omega_r = self._omega_d + cfg.lambda_o * phi
+        omegadot_r = cfg.lambda_o * (self._omega_d - omega_W)
+        if cfg.mode == 'moment' and touching:
+            dm = m_W - self.m_d_W
+            omega_r = (n_W * float(n_W.dot(omega_r))
+                       - cfg.moment_gain * (dm - n_W * float(n_W.dot(dm))))
+            omegadot_r = n_W * float(n_W.dot(omegadot_r))
+        return OrientationRef(omega_r, omegadot_r, m_W, phi, omega_W)
+
+    def _advance(self, n_W: np.ndarray, xdot_d_W: np.ndarray, dt: float) -> None:
+        """Turn a_d toward a* (rate-limited), rebuild R_d and its rate omega_d."""
+        cfg = self.cfg
+        v_t = xdot_d_W - n_W * float(n_W.dot(xdot_d_W))
+        speed = math.sqrt(float(v_t.dot(v_t)))
+        if speed > MIN_TRAVEL_SPEED:
+            self.t_W = v_t / speed
+        target = n_W
+        t_W = self._travel(n_W)
+        if cfg.tilt > 0.0 and t_W is not None:
+            target = math.cos(cfg.tilt) * n_W + math.sin(cfg.tilt) * self._tilt_toward(
+                n_W, t_W, cfg.rate_limit * dt / math.sin(cfg.tilt))
+        a_d = turn_toward(self.a_d, target, cfg.rate_limit * dt)
+        spin = cfg.spin == 'path' and t_W is not None
+        if not spin and a_d.tolist() == self.a_d.tolist():  # the target did not move
+            self._omega_d = np.zeros(3)
+            return
+        self.a_d = a_d
+        R_d = align(self._a_0, a_d).dot(self.R_0)
+        if spin:
+            R_d = self._spin_along(R_d, t_W, cfg.rate_limit * dt)
+        self._omega_d = so3_log(R_d.dot(self.R_d.T)) / dt
+        self.R_d = R_d
+
+    def _tilt_toward(self, n_W: np.ndarray, t_W: np.ndarray, max_angle: float) -> np.ndarray:
+        """
+        Return the tilt's direction (tangent, unit) turned about n toward t by ``max_angle``.
+
+        The axis then stays on the cone ``tool_tilt`` around n_hat while the direction of
+        travel turns (a corner): a turn straight across would cut the tilt short midway. The
+        caller's ``max_angle``, ``orientation_rate_limit dt / sin(tool_tilt)``, moves the axis
+        along the cone at the rate limit.
+        """
+        t_d = self._tilt_dir if self._tilt_dir is not None else t_W
+        t_d = t_d - n_W * float(n_W.dot(t_d))
+        norm = math.sqrt(float(t_d.dot(t_d)))
+        t_d = t_W if norm < 1e-9 else t_d / norm
+        self._tilt_dir = turn_toward(t_d, t_W, max_angle)
+        return self._tilt_dir
+
+    def _travel(self, n_W: np.ndarray) -> np.ndarray | None:
+        """Return the last direction of travel made perpendicular to n_W (None: none yet)."""
+        if self.t_W is None:
+            return None
+        t = self.t_W - n_W * float(n_W.dot(self.t_W))
+        norm = math.sqrt(float(t.dot(t)))
+        return t / norm if norm > 1e-9 else None
+
+    def _spin_along(self, R_d: np.ndarray, t_W: np.ndarray, max_angle: float) -> np.ndarray:
+        """
+        Turn R_d about a_d so the end effector's x axis lies along t (tool_spin path).
+
+        The spin held from the last tick is the start (``R_0`` then carries it on), so the spin
+        also turns at most ``max_angle`` per tick.
+        """
+        x = R_d[:, 0] - self.a_d * float(self.a_d.dot(R_d[:, 0]))
+        t = t_W - self.a_d * float(self.a_d.dot(t_W))
+        nx, nt = math.sqrt(float(x.dot(x))), math.sqrt(float(t.dot(t)))
+        if nx < 1e-9 or nt < 1e-9:
+            return R_d
+        angle = min(angle_between(x / nx, t / nt), max_angle)
+        sign = 1.0 if float(np.cross(x, t).dot(self.a_d)) >= 0.0 else -1.0
+        R_spin = _axis_angle(self.a_d, sign * angle)
+        self.R_0 = R_spin.dot(R_d)  # the new spin is held from here on
+        self._a_0 = self.a_d.copy()
+        return self.R_0.copy()
+
+    def tilt_error(self, R_W_ee: np.ndarray) -> float:
+        """Return the angle between the tool axis and its target axis a_d, rad."""
+        return 0.0 if self.a_d is None else angle_between(self.axis_W(R_W_ee), self.a_d)
+
+
+def _axis_angle(u: np.ndarray, angle: float) -> np.ndarray:
+    """Return the rotation by ``angle`` about the unit axis ``u`` (Rodrigues)."""
+    K = np.array(((0.0, -u[2], u[1]), (u[2], 0.0, -u[0]), (-u[1], u[0], 0.0)))
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K.dot(K)

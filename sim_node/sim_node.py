@@ -6,6 +6,8 @@ environment exerts on the tool, in ``tool0``, with noise; published just before 
 state of the same step), ``sim/contact_wrench`` (true force the tool exerts on the
 surface, base frame; at ``telemetry_rate_hz``), ``sim/contact_normal`` (the true surface
 normal, into it, nearest the tool, base frame; beside it, while there is a surface),
+``sim/tool_axis`` (the tool's axis, the end effector's z, base frame; beside it; the true
+moment about the tool's centre is ``sim/contact_wrench``'s torque),
 ``sim/link_masses`` (the true link masses,
 once, transient local), ``robot_description`` (its URDF, transient local, like
 robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
@@ -169,6 +171,7 @@ class SimNode(Node):
             frame_id=self.tool_frame)))
         self.true = WrenchStamped(header=Header(frame_id=self.base_frame))
         self.normal = Vector3Stamped(header=Header(frame_id=self.base_frame))
+        self.axis = Vector3Stamped(header=Header(frame_id=self.base_frame))
         self.clock_msg = ClockMsg()
         self.n_pub = 0
 
@@ -179,6 +182,7 @@ class SimNode(Node):
                                             STATE_OUT_QOS)
         self.pub_true = self.create_publisher(WrenchStamped, 'sim/contact_wrench', DEFAULT_QOS)
         self.pub_normal = self.create_publisher(Vector3Stamped, 'sim/contact_normal', DEFAULT_QOS)
+        self.pub_axis = self.create_publisher(Vector3Stamped, 'sim/tool_axis', DEFAULT_QOS)
         self.pub_clock = (self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
                           if self.lockstep else None)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
@@ -337,11 +341,14 @@ class SimNode(Node):
         stamp = None
         if self.true_every and self.n_pub % self.true_every == 0:
             stamp = Time(nanoseconds=t_ns).to_msg()
-            force = true.wrench.force
+            force, torque = true.wrench.force, true.wrench.torque
             force.x, force.y, force.z = (float(c) for c in meas.f_true_W)
+            T_S = getattr(self.sim, 'torque_S', None)  # tool on part: -R T_S (no weight torque)
+            if T_S is not None:
+                torque.x, torque.y, torque.z = (float(c) for c in -meas.R_W_ee.dot(T_S))
             true.header.stamp = stamp
             self.pub_true.publish(true)
-            self._publish_normal(meas.p_W, stamp)
+            self._publish_normal(meas.p_W, meas.R_W_ee, stamp)
         self.n_pub += 1
         self.state_gaps.mark(time.monotonic())
         if self.pub_clock is not None:
@@ -349,14 +356,15 @@ class SimNode(Node):
             self.pub_clock.publish(self.clock_msg)
         self.t_pub = time.monotonic()
 
-    def _publish_normal(self, p_W: np.ndarray, stamp: Any) -> None:
-        """Publish the true surface normal (into it) nearest the tool; nothing without one."""
+    def _publish_normal(self, p_W: np.ndarray, R_W_ee: np.ndarray, stamp: Any) -> None:
+        """Publish the true surface normal nearest the tool and the tool's axis beside it."""
         n_W = self.sim.contact_normal(p_W)
         if n_W is not None:
-            v = self.normal.vector
-            v.x, v.y, v.z = (float(c) for c in n_W)
-            self.normal.header.stamp = stamp
-            self.pub_normal.publish(self.normal)
+            for msg, pub, vec in ((self.normal, self.pub_normal, n_W),
+                                  (self.axis, self.pub_axis, R_W_ee[:, 2])):
+                msg.vector.x, msg.vector.y, msg.vector.z = (float(c) for c in vec)
+                msg.header.stamp = stamp
+                pub.publish(msg)
 
     def _on_diagnostics(self) -> None:
         stamp = (Time(nanoseconds=round(self.sim.t * 1e9)) if self.lockstep

@@ -93,6 +93,12 @@ class RunLog:
     n_true_W : numpy.ndarray, shape (N, 3), optional
         The surface's true normal at the tool (``/sim/contact_normal``); None when unknown.
         The normal force error is then the true force along it.
+    tool_axis_W : numpy.ndarray, shape (N, 3), optional
+        The sim tool's axis (``/sim/tool_axis``: the end effector's z, a disc's axis); None
+        when not recorded.
+    m_true_W : numpy.ndarray, shape (N, 3), optional
+        The true moment the tool exerts on the part about the tool's centre (the torque of
+        ``/sim/contact_wrench``), N m; None when not recorded.
 
     """
 
@@ -112,6 +118,8 @@ class RunLog:
     path_running: np.ndarray | None = None
     n_hat_W: np.ndarray | None = None
     n_true_W: np.ndarray | None = None
+    tool_axis_W: np.ndarray | None = None
+    m_true_W: np.ndarray | None = None
 
     @classmethod
     def from_result(cls, result: Any) -> 'RunLog':
@@ -169,7 +177,7 @@ def _validated_fields(log: RunLog) -> dict[str, Any]:
     out['k_hat'] = None if log.k_hat is None else _estimate(log.k_hat, n)
     out['path_running'] = None if log.path_running is None else _flags(
         'path_running', log.path_running, n)
-    for name in ('n_hat_W', 'n_true_W'):
+    for name in ('n_hat_W', 'n_true_W', 'tool_axis_W', 'm_true_W'):
         value = getattr(log, name)
         out[name] = None if value is None else _as_array(name, value, (n, 3))
     if log.k_true is not None:

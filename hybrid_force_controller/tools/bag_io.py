@@ -9,8 +9,9 @@ version 8 is kept for older readers (Humble-era tools).
 Optional topics (a bag without them loads): ``/sim/contact_wrench`` (the true force),
 ``~/stiffness_estimate`` (``std_msgs/Float64``, the online stiffness estimate, NaN while
 unknown), ``~/path_status`` (``std_msgs/String``: when a user's path was ``running``),
-``~/surface_normal`` (the normal the controller used) and ``/sim/contact_normal`` (the
-surface's true normal at the tool; both ``geometry_msgs/Vector3Stamped``).
+``~/surface_normal`` (the normal the controller used), ``/sim/contact_normal`` (the
+surface's true normal at the tool) and ``/sim/tool_axis`` (the sim tool's axis; all three
+``geometry_msgs/Vector3Stamped``).
 """
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ __all__ = ['BAG_VERSION', 'BagError', 'BagWriter', 'DEFAULT_QOS', 'RECORD_TOPICS
            'LATCHED_TOPICS', 'REQUIRED_TOPICS', 'TOPIC_CONTACT_WRENCH', 'TOPIC_DIAGNOSTICS',
            'TOPIC_EFFORT_COMMANDS', 'TOPIC_ERROR', 'TOPIC_FT_WRENCH', 'TOPIC_JOINT_STATES',
            'TOPIC_LINK_MASSES', 'TOPIC_CONTACT_NORMAL', 'TOPIC_SURFACE_NORMAL',
-           'TOPIC_PATH_STATUS', 'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_WRENCH',
+           'TOPIC_PATH_STATUS', 'TOPIC_STIFFNESS_ESTIMATE', 'TOPIC_THETA_HAT', 'TOPIC_TOOL_AXIS',
+           'TOPIC_WRENCH',
            'TOPIC_WRENCH_DESIRED', 'TOPIC_X', 'TOPIC_X_DESIRED', 'TYPESTORE', 'load_run']
 
 TOPIC_X = '/hybrid_force_controller/x'
@@ -54,6 +56,7 @@ TOPIC_PATH_STATUS = '/hybrid_force_controller/path_status'
 TOPIC_LINK_MASSES = '/sim/link_masses'  # the sim's true masses: transient local, once
 TOPIC_SURFACE_NORMAL = '/hybrid_force_controller/surface_normal'
 TOPIC_CONTACT_NORMAL = '/sim/contact_normal'
+TOPIC_TOOL_AXIS = '/sim/tool_axis'
 
 _POINT = 'geometry_msgs/msg/PointStamped'
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
@@ -77,6 +80,7 @@ RECORD_TOPICS: list[tuple[str, str]] = [
     (TOPIC_LINK_MASSES, _ARRAY),
     (TOPIC_SURFACE_NORMAL, _VECTOR),
     (TOPIC_CONTACT_NORMAL, _VECTOR),
+    (TOPIC_TOOL_AXIS, _VECTOR),
 ]
 # published once, transient local: a recorder that joins later still gets them
 LATCHED_TOPICS = (TOPIC_LINK_MASSES,)
@@ -207,12 +211,15 @@ def _value(topic: str, msg: Any) -> Any:
         return 1.0 if msg.data == 'running' else 0.0
     if topic == TOPIC_LINK_MASSES:
         return np.array(msg.data, dtype=float)
-    if topic in (TOPIC_SURFACE_NORMAL, TOPIC_CONTACT_NORMAL):
+    if topic in (TOPIC_SURFACE_NORMAL, TOPIC_CONTACT_NORMAL, TOPIC_TOOL_AXIS):
         return (msg.vector.x, msg.vector.y, msg.vector.z)
     if topic == TOPIC_THETA_HAT:
         label = msg.layout.dim[0].label if len(msg.layout.dim) else ''
         return np.array(msg.data, dtype=float), label
     force = msg.wrench.force
+    if topic == TOPIC_CONTACT_WRENCH:  # the true moment too
+        torque = msg.wrench.torque
+        return (force.x, force.y, force.z, torque.x, torque.y, torque.z)
     return (force.x, force.y, force.z)
 
 
@@ -227,7 +234,8 @@ def _read_series(bag_path: Path) -> dict[str, Series]:
 
     """
     wanted = (*REQUIRED_TOPICS, TOPIC_CONTACT_WRENCH, TOPIC_STIFFNESS_ESTIMATE,
-              TOPIC_PATH_STATUS, TOPIC_LINK_MASSES, TOPIC_SURFACE_NORMAL, TOPIC_CONTACT_NORMAL)
+              TOPIC_PATH_STATUS, TOPIC_LINK_MASSES, TOPIC_SURFACE_NORMAL, TOPIC_CONTACT_NORMAL,
+              TOPIC_TOOL_AXIS)
     try:
         with AnyReader([bag_path], default_typestore=TYPESTORE) as reader:
             if reader.message_count == 0 or not reader.connections:
@@ -299,6 +307,8 @@ def load_run(bag_path: str | Path,
         many entries (the ``link_masses`` parameter set), ``n_hat_W`` the controller's
         normal (``~/surface_normal``) and ``n_true_W`` the surface's (``/sim/contact_normal``)
         when recorded; contact is then tested along the true normal (else the controller's).
+        ``tool_axis_W`` the sim tool's axis (``/sim/tool_axis``) and ``m_true_W`` the true
+        contact moment (``/sim/contact_wrench``'s torque) when recorded.
 
     Returns
     -------
@@ -321,7 +331,8 @@ def load_run(bag_path: str | Path,
     n_W = _surface_normal(f_d_W, path)
     f_W = on_x_time(series[TOPIC_WRENCH], x)
     true = series.get(TOPIC_CONTACT_WRENCH)
-    f_true_W = on_x_time(true, x) if true is not None and true.values else None
+    wrench_true = on_x_time(true, x) if true is not None and true.values else None
+    f_true_W = None if wrench_true is None else wrench_true[:, :3]
     theta_hat, names = _theta(series[TOPIC_THETA_HAT], x, path)
     stamps = np.asarray(x.stamp_ns, dtype=np.int64)
     n_hat_W = unit_vectors(series.get(TOPIC_SURFACE_NORMAL), x)
@@ -339,6 +350,8 @@ def load_run(bag_path: str | Path,
                       k_hat=stiffness(series.get(TOPIC_STIFFNESS_ESTIMATE), x),
                       path_running=path_running(series.get(TOPIC_PATH_STATUS), x),
                       theta_true=true_masses(series.get(TOPIC_LINK_MASSES), theta_hat),
-                      n_hat_W=n_hat_W, n_true_W=n_true_W)
+                      n_hat_W=n_hat_W, n_true_W=n_true_W,
+                      tool_axis_W=unit_vectors(series.get(TOPIC_TOOL_AXIS), x),
+                      m_true_W=None if wrench_true is None else wrench_true[:, 3:])
     except AnalysisError as exc:
         raise BagError(f'{path}: recorded signals are not a valid run: {exc}') from exc

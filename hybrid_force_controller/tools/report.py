@@ -27,6 +27,7 @@ from typing import Sequence
 from .analysis import AnalysisError, compute_metrics, json_safe
 from .bag_io import BagError, load_run
 from .normal_analysis import normal_metrics
+from .orientation_analysis import orientation_metrics
 from .path_analysis import path_metrics
 from .plots import write_figures, write_normal_figure, write_path_figure
 
@@ -47,6 +48,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='wall-clock duration of the run [s], copied to metrics.json')
     parser.add_argument('--k-true', type=float, default=None,
                         help='true surface stiffness [N/m], drawn in fig6_stiffness.png')
+    parser.add_argument('--tool-tilt', type=float, default=0.0,
+                        help="the controller's tool_tilt [rad]: the tilt error is the tool "
+                             "axis' angle from the normal less it")
     return parser
 
 
@@ -74,6 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         metrics = compute_metrics(log, t_start=args.t_start, wall_time_s=args.wall_time)
         metrics.update(path_metrics(log, t_start=args.t_start))
         metrics.update(normal_metrics(log))
+        metrics.update(orientation_metrics(log, args.tool_tilt))
     except (BagError, AnalysisError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

@@ -33,6 +33,14 @@ workpiece the controller only roughly knows under the tool (surfaces.py): a plan
 told n = [0, 0, -1] in every case and learns n_hat (``n_estimation``); the script sends its
 square in the told plane, centred on the tool. metrics.json then has ``normal_error_deg`` and
 ``surface``, and the report draws n_hat against the sim's ``sim/contact_normal`` (fig8).
+
+``--tool disc --tool-radius R`` presses a flat pad; the Panda then seats it on the measured tilt
+moments (``--orientation moment``, the default with a disc; ``normal``: its axis held along n_hat,
+tilted by ``--tool-tilt`` toward the direction of travel; ``free``: the paper's, the tool turns
+as the arm pleases). metrics.json then has
+``rms_tool_tilt_error_deg``, ``max_tool_tilt_error_deg`` (the tool axis against the true normal,
+less the set tilt) and ``rms_moment_n_m`` (the true tilt moments), and records ``tool``,
+``orientation`` and ``tool_tilt``.
 """
 from __future__ import annotations
 
@@ -48,6 +56,7 @@ from typing import Any, Sequence
 
 from .launch import cell_env, find_config, PAPER_MASSES_OFF, PKG, stop_processes, use_loopback_dds
 from .surfaces import surface_settings, SURFACES, SurfaceSettings, TOLD_N
+from ...core.config.groups import ORIENTATION_MODES
 
 #: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
 #: Panda's wrist sensor, which the controller compensates; the paper's arm keeps a massless tip
@@ -95,7 +104,26 @@ def _parser() -> argparse.ArgumentParser:
                     help="mujoco: the sim's tool_shape (default sphere): disc, a flat pad")
     ap.add_argument('--tool-radius', type=float, default=None,
                     help="mujoco: the sim's tool_radius, m (default 0.01)")
+    ap.add_argument('--orientation', choices=ORIENTATION_MODES, default=None,
+                    help="the Panda: the controller's orientation_mode (default moment with "
+                    '--tool disc, else free)')
+    ap.add_argument('--tool-tilt', type=float, default=0.0,
+                    help="the controller's tool_tilt, rad (with --orientation normal)")
     return ap
+
+
+def _orientation(args: argparse.Namespace) -> str:
+    """Return the orientation_mode of --orientation (default: moment for a disc pad)."""
+    if args.orientation is not None:
+        return args.orientation
+    return 'moment' if args.tool == 'disc' and args.arm == 'panda' else 'free'
+
+
+def _orientation_args(args: argparse.Namespace) -> list[str]:
+    """Return the controller's ``-p orientation_mode/tool_tilt`` (none for the paper's free)."""
+    mode = _orientation(args)
+    out = ['-p', f'orientation_mode:={mode}'] if mode != 'free' else []
+    return out + (['-p', f'tool_tilt:={float(args.tool_tilt)!r}'] if args.tool_tilt else [])
 
 
 def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:
@@ -227,6 +255,10 @@ def _check(args: argparse.Namespace) -> str:
             return f'--{name} needs --physics mujoco and a value >= 0'
     if args.tool is not None and args.physics != 'mujoco':
         return "--tool needs --physics mujoco (the paper's physics models a point tool)"
+    if (_orientation(args) != 'free' or args.tool_tilt) and args.arm != 'panda':
+        return '--orientation and --tool-tilt need --arm panda (a 6-D task: 6 joints or more)'
+    if not 0.0 <= args.tool_tilt <= 0.5:
+        return '--tool-tilt must be in [0, 0.5] rad'
     if args.task == 'wipe' and not 0.0 < args.side <= 0.5:
         return '--side must be in (0, 0.5] m'
     if args.surface is not None and (args.task != 'wipe' or args.arm != 'panda'):
@@ -263,7 +295,7 @@ def _run(args: argparse.Namespace, bag: Path, mode: str) -> tuple[int | None, fl
                          _sim_masses(args) + (WIPE_SIM_ARGS if wipe else []) + [*shape.sim_args]
                          + _tool_args(args) + extra['sim'],
                          (WIPE_CONTROLLER_ARGS if wipe else []) + [*shape.ctrl_args]
-                         + extra['controller'])
+                         + _orientation_args(args) + extra['controller'])
     try:
         _record(bag, args.duration, args.lockstep, procs, args.timeout, _operator(args, env))
     except (RuntimeError, TimeoutError) as exc:
@@ -311,11 +343,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ...tools.report import main as report_main
     print('report:')
     code = report_main([str(bag), '--out', str(report_dir), '--t-start',
-                        repr(_t_start(args, bag))])
+                        repr(_t_start(args, bag)), '--tool-tilt', repr(args.tool_tilt)])
     if code == 0:
         _add_mode(report_dir / 'metrics.json', mode, arm=args.arm, physics=args.physics,
                   friction=mu, tool_mass=tool_mass, task=args.task,
-                  tared=args.task == 'wipe' and not args.no_tare, surface=args.surface)
+                  tared=args.task == 'wipe' and not args.no_tare, surface=args.surface,
+                  tool=args.tool or 'sphere', orientation=_orientation(args),
+                  tool_tilt=args.tool_tilt)
         figures = ', '.join(p.name for p in sorted(report_dir.glob('fig*.png')))
         print(f'bag:     {bag}\nfigures: {report_dir}/{figures}\n'
               f'metrics: {report_dir}/metrics.json')

@@ -6,8 +6,8 @@ environment exerts on the tool, in ``tool0``, with noise; published just before 
 state of the same step), ``sim/contact_wrench`` (true force the tool exerts on the
 surface, base frame; at ``telemetry_rate_hz``), ``sim/contact_normal`` (the true surface
 normal, into it, nearest the tool, base frame; beside it, while there is a surface),
-``sim/tool_axis`` (the tool's axis, the end effector's z, base frame; beside it; the true
-moment about the tool's centre is ``sim/contact_wrench``'s torque),
+``sim/tool_axis`` (physics:=mujoco: the tool's axis, the end effector's z, base frame; beside
+it; the true moment about the tool's centre is ``sim/contact_wrench``'s torque),
 ``sim/link_masses`` (the true link masses,
 once, transient local), ``robot_description`` (its URDF, transient local, like
 robot_state_publisher) and ``/diagnostics`` (1 Hz: commands/s received, steps,
@@ -357,11 +357,12 @@ class SimNode(Node):
         self.t_pub = time.monotonic()
 
     def _publish_normal(self, p_W: np.ndarray, R_W_ee: np.ndarray, stamp: Any) -> None:
-        """Publish the true surface normal nearest the tool and the tool's axis beside it."""
+        """Publish the true surface normal nearest the tool, and MuJoCo's tool's axis beside it."""
         n_W = self.sim.contact_normal(p_W)
         if n_W is not None:
+            has_axis = getattr(self.sim, 'torque_S', None) is not None  # the paper's: a point
             for msg, pub, vec in ((self.normal, self.pub_normal, n_W),
-                                  (self.axis, self.pub_axis, R_W_ee[:, 2])):
+                                  (self.axis, self.pub_axis, R_W_ee[:, 2]))[:1 + has_axis]:
                 msg.vector.x, msg.vector.y, msg.vector.z = (float(c) for c in vec)
                 msg.header.stamp = stamp
                 pub.publish(msg)

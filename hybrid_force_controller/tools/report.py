@@ -78,7 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         metrics = compute_metrics(log, t_start=args.t_start, wall_time_s=args.wall_time)
         metrics.update(path_metrics(log, t_start=args.t_start))
         metrics.update(normal_metrics(log))
-        metrics.update(orientation_metrics(log, args.tool_tilt))
+        if log.tool_axis_W is not None:  # a tool with an axis (MuJoCo's): how square it was
+            metrics.update(orientation_metrics(log, args.tool_tilt))
     except (BagError, AnalysisError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2

@@ -40,7 +40,7 @@ tilted by ``--tool-tilt`` toward the direction of travel; ``free``: the paper's,
 as the arm pleases). metrics.json then has
 ``rms_tool_tilt_error_deg``, ``max_tool_tilt_error_deg`` (the tool axis against the true normal,
 less the set tilt) and ``rms_moment_n_m`` (the true tilt moments), and records ``tool``,
-``orientation`` and ``tool_tilt``.
+``orientation`` and a non-zero ``tool_tilt``.
 """
 from __future__ import annotations
 
@@ -349,7 +349,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   friction=mu, tool_mass=tool_mass, task=args.task,
                   tared=args.task == 'wipe' and not args.no_tare, surface=args.surface,
                   tool=args.tool or 'sphere', orientation=_orientation(args),
-                  tool_tilt=args.tool_tilt)
+                  **({'tool_tilt': args.tool_tilt} if args.tool_tilt else {}))
         figures = ', '.join(p.name for p in sorted(report_dir.glob('fig*.png')))
         print(f'bag:     {bag}\nfigures: {report_dir}/{figures}\n'
               f'metrics: {report_dir}/metrics.json')

@@ -19,15 +19,18 @@ import numpy as np
 
 from .analysis import RunLog, surface_axis, tangential_error
 from .normal_analysis import normal_error_deg, SETTLE_S, sliding_begins
+from .orientation_analysis import tool_tilt_deg
 from .path_analysis import path_window, surface_basis
 
-__all__ = ['FIGURE_NAMES', 'NORMAL_FIGURE', 'PATH_FIGURE', 'STIFFNESS_FIGURE', 'write_figures',
-           'write_normal_figure', 'write_path_figure']
+__all__ = ['FIGURE_NAMES', 'NORMAL_FIGURE', 'ORIENTATION_FIGURE', 'PATH_FIGURE',
+           'STIFFNESS_FIGURE', 'write_figures', 'write_normal_figure', 'write_orientation_figure',
+           'write_path_figure']
 
 FIGURE_NAMES = ('fig3_position.png', 'fig4_force.png', 'fig5_parameters.png')
 STIFFNESS_FIGURE = 'fig6_stiffness.png'
 PATH_FIGURE = 'fig7_path.png'
 NORMAL_FIGURE = 'fig8_normal.png'
+ORIENTATION_FIGURE = 'fig9_orientation.png'
 
 _FIGSIZE = (7.0, 4.0)
 _DPI = 90
@@ -220,6 +223,37 @@ def write_normal_figure(log: RunLog, out_dir: str | Path) -> Path | None:
     for ax in (ax_n, ax_e):
         ax.grid(True, alpha=0.3)
     path = Path(out_dir) / NORMAL_FIGURE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    return path
+
+
+def write_orientation_figure(log: RunLog, out_dir: str | Path,
+                             tilt_rad: float = 0.0) -> Path | None:
+    """
+    Draw how square the tool was to ``fig9_orientation.png``: its tilt and the tilt moment.
+
+    The angle between the tool axis and the true normal (the set tilt dashed), and the true
+    moment across the normal, over time. None (nothing written) without a recorded tool axis.
+    """
+    if log.tool_axis_W is None or log.n_true_W is None:
+        return None
+    fig, (ax_t, ax_m) = _new_figure(2)
+    ax_t.plot(log.t, tool_tilt_deg(log), color='tab:blue', label='tool axis to the normal')
+    ax_t.axhline(np.degrees(tilt_rad), color='black', ls='--', label='set tilt')
+    ax_t.set_ylabel('tilt [deg]')
+    ax_t.set_ylim(bottom=0.0)
+    ax_t.set_title('The tool square to the part: its tilt and the tilt moment')
+    ax_t.legend(loc='best')
+    if log.m_true_W is not None:
+        n = log.n_true_W
+        m_t = log.m_true_W - np.sum(log.m_true_W * n, axis=1)[:, None] * n
+        ax_m.plot(log.t, np.linalg.norm(m_t, axis=1), color='tab:red')
+    ax_m.set_ylabel('tilt moment [N m]')
+    ax_m.set_xlabel('t [s]')
+    for ax in (ax_t, ax_m):
+        ax.grid(True, alpha=0.3)
+    path = Path(out_dir) / ORIENTATION_FIGURE
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     return path

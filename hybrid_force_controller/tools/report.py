@@ -29,7 +29,8 @@ from .bag_io import BagError, load_run
 from .normal_analysis import normal_metrics
 from .orientation_analysis import orientation_metrics
 from .path_analysis import path_metrics
-from .plots import write_figures, write_normal_figure, write_path_figure
+from .plots import (write_figures, write_normal_figure, write_orientation_figure,
+                    write_path_figure)
 
 __all__ = ['main']
 
@@ -87,7 +88,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         figures = write_figures(log, args.out)
         figures.append(write_path_figure(log, args.out, args.t_start))
-        figures.extend(p for p in [write_normal_figure(log, args.out)] if p is not None)
+        figures.extend(p for p in [write_normal_figure(log, args.out),
+                                   write_orientation_figure(log, args.out, args.tool_tilt)]
+                       if p is not None)
         metrics_path.write_text(json.dumps(json_safe(metrics), indent=2) + '\n')
     except OSError as exc:
         print(f'error: cannot write to {args.out}: {exc}', file=sys.stderr)

@@ -46,11 +46,12 @@ def point_msg(ns: int, p) -> object:
     return T['geometry_msgs/msg/PointStamped'](header=header(ns), point=point)
 
 
-def wrench_msg(ns: int, f) -> object:
+def wrench_msg(ns: int, f, m=(0.0, 0.0, 0.0)) -> object:
     vec = T['geometry_msgs/msg/Vector3']
     wrench = T['geometry_msgs/msg/Wrench'](force=vec(x=float(f[0]), y=float(f[1]),
                                                      z=float(f[2])),
-                                           torque=vec(x=0.0, y=0.0, z=0.0))
+                                           torque=vec(x=float(m[0]), y=float(m[1]),
+                                                      z=float(m[2])))
     return T['geometry_msgs/msg/WrenchStamped'](header=header(ns), wrench=wrench)
 
 

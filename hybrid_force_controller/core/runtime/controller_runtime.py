@@ -379,7 +379,9 @@ class ControllerRuntime(RuntimeInterface):
         e_W = np.zeros(3)
         if e is not None:
             e_W[self.model.task_index] = e
+        axis = (self.orientation.axis_W(self._in.kin().R_W_ee)
+                if self._params.orientation.active and self._in.state is not None else None)
         return TickOutput(tau, mode, x_W, x_W if ref is None else ref.x_d_W, f, self.f_d_W,
                           e_W, self.ctrl.theta_hat.copy(), self._contact.active, status,
                           self._stiffness.k_hat, self._motion.path_progress(),
-                          None if ref is None else ref.xdot_d_W, self._normal.n_W)
+                          None if ref is None else ref.xdot_d_W, self._normal.n_W, axis)

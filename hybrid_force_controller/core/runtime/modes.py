@@ -31,7 +31,8 @@ class TickOutput:
     while waiting; ``k_hat`` is the stiffness estimate, N/m, NaN while unknown; ``path`` the
     progress of a user's path (path_run.py); ``xdot_d_W`` the reference's velocity (None
     while not running); ``n_W`` the surface normal in use (the ``n`` parameter, or the
-    estimate n_hat with ``n_estimation``; runtime/surface.py).
+    estimate n_hat with ``n_estimation``; runtime/surface.py); ``axis_W`` the tool's axis
+    (``tool_axis`` turned into the base frame) while its orientation is controlled, else None.
     """
 
     tau: np.ndarray | None
@@ -48,3 +49,4 @@ class TickOutput:
     path: PathProgress = IDLE
     xdot_d_W: np.ndarray | None = None
     n_W: np.ndarray | None = None
+    axis_W: np.ndarray | None = None

@@ -4,8 +4,9 @@
 From the latest tick's output (never on the control thread), about 10 Hz: the path being
 followed as a line strip, the current reference point, the measured contact force as an
 arrow (the force the tool exerts, :data:`FORCE_SCALE_M_PER_N`), the normal the controller uses
-as an arrow from the tool (n, or its estimate n_hat with ``n_estimation``), and a patch of the
-tangent plane through the tool. The messages are built
+as an arrow from the tool (n, or its estimate n_hat with ``n_estimation``), a patch of the
+tangent plane through the tool and, while the tool's orientation is controlled
+(``orientation_mode``), the tool's axis as an arrow (removed otherwise). The messages are built
 once and refilled in place; the path's points only when the path changes.
 """
 from __future__ import annotations
@@ -30,7 +31,8 @@ _SPECS = ((0, Marker.LINE_STRIP, (0.1, 0.4, 1.0, 1.0), (0.002, 0.0, 0.0)),
           (1, Marker.SPHERE, (0.1, 0.9, 0.2, 1.0), (0.008, 0.008, 0.008)),
           (2, Marker.ARROW, (0.9, 0.1, 0.1, 1.0), (0.003, 0.006, 0.01)),
           (3, Marker.ARROW, (1.0, 0.85, 0.1, 1.0), (0.002, 0.005, 0.01)),
-          (4, Marker.CUBE, (0.6, 0.6, 0.6, 0.35), (PLANE_SIDE_M, PLANE_SIDE_M, 0.0005)))
+          (4, Marker.CUBE, (0.6, 0.6, 0.6, 0.35), (PLANE_SIDE_M, PLANE_SIDE_M, 0.0005)),
+          (5, Marker.ARROW, (0.1, 0.8, 0.9, 1.0), (0.002, 0.005, 0.01)))
 
 
 def quaternion_z_to(n_W: np.ndarray) -> tuple[float, float, float, float]:
@@ -63,9 +65,9 @@ class MarkerOutput:
             m.scale.x, m.scale.y, m.scale.z = scale
             m.pose.orientation.w = 1.0
             self.msg.markers.append(m)
-        self.path, self.ref, self.force, self.normal, self.plane = self.msg.markers
-        self.force.points = [Point(), Point()]
-        self.normal.points = [Point(), Point()]
+        self.path, self.ref, self.force, self.normal, self.plane, self.axis = self.msg.markers
+        for arrow in (self.force, self.normal, self.axis):
+            arrow.points = [Point(), Point()]
         self._path_key: Any = None
 
     def set_path(self, key: Any, points_W: np.ndarray | None) -> None:
@@ -87,9 +89,14 @@ class MarkerOutput:
         p = self.ref.pose.position
         p.x, p.y, p.z = (float(v) for v in out.x_d_W)
         tip = x + FORCE_SCALE_M_PER_N * out.f_W
-        for arrow, end in ((self.force, tip), (self.normal, x + NORMAL_LENGTH_M * n_W)):
+        arrows = [(self.force, x, tip), (self.normal, x, x + NORMAL_LENGTH_M * n_W)]
+        axis = getattr(out, 'axis_W', None)
+        self.axis.action = Marker.DELETE if axis is None else Marker.ADD
+        if axis is not None:  # the tool's axis, pointing at the tool from the flange's side
+            arrows.append((self.axis, x - NORMAL_LENGTH_M * axis, x))
+        for arrow, start, end in arrows:
             a, b = arrow.points
-            a.x, a.y, a.z = (float(v) for v in x)
+            a.x, a.y, a.z = (float(v) for v in start)
             b.x, b.y, b.z = (float(v) for v in end)
         c = self.plane.pose.position
         c.x, c.y, c.z = (float(v) for v in x)

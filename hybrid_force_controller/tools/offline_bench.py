@@ -15,6 +15,8 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
   into two runtimes, tick by tick in alternation (the machine's load falls on both alike),
   three times: the medians' medians and the median ratio of the medians (issue 24: at most
   1.1);
+- ``orientation_tick_7dof_us_median_free`` / ``_moment`` and ``orientation_tick_ratio``: the
+  same paired replay, ``orientation_mode`` free against moment (the 6-D task; issue 32);
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline;
 - with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
   tick dearer): its controller step timed in a subprocess, alternating three times with
@@ -96,6 +98,30 @@ def _recorded_stream(model, cfg: ScenarioConfig) -> tuple[list, dict]:
 
 def normal_tick_figures(model=None, duration: float = 4.0, rounds: int = 3) -> dict[str, float]:
     """Return the Panda's tick without and with the normal estimate, paired (us, ratio)."""
+    off, on, ratio = _paired_medians(model, duration, rounds, {'n_estimation': False},
+                                     {'n_estimation': True})
+    return {'normal_tick_7dof_us_median_off': off, 'normal_tick_7dof_us_median_on': on,
+            'normal_tick_ratio': ratio}
+
+
+def orientation_tick_figures(model=None, duration: float = 4.0,
+                             rounds: int = 3) -> dict[str, float]:
+    """Return the Panda's tick with orientation_mode free and moment, paired (us, ratio)."""
+    free, moment, ratio = _paired_medians(model, duration, rounds,
+                                          {'orientation_mode': 'free'},
+                                          {'orientation_mode': 'moment'})
+    return {'orientation_tick_7dof_us_median_free': free,
+            'orientation_tick_7dof_us_median_moment': moment, 'orientation_tick_ratio': ratio}
+
+
+def _paired_medians(model, duration: float, rounds: int, a: dict,
+                    b: dict) -> tuple[float, float, float]:
+    """
+    Return the tick's medians with settings ``a`` and ``b`` (us) and their median ratio.
+
+    One recorded input stream (told n = [0, 0, -1] on the plane tilted 0.3 rad, learning it,
+    a 4 cm square) replayed into two runtimes tick by tick in alternation, ``rounds`` times.
+    """
     model = panda_model() if model is None else model
     tilt = (0.0, math.sin(0.3), -math.cos(0.3))
     cfg = panda_scenario(model, duration, surface_normal=tilt, overrides={
@@ -106,14 +132,12 @@ def normal_tick_figures(model=None, duration: float = 4.0, rounds: int = 3) -> d
     medians = []
     for _ in range(rounds):
         runtimes = [ControllerRuntime(model, build_params(
-            model, {**cfg.overrides, 'theta_hat0': theta0, 'n_estimation': est}))
-            for est in (False, True)]
+            model, {**cfg.overrides, 'theta_hat0': theta0, **setting})) for setting in (a, b)]
         ticks = _paired_ticks(model, runtimes, stream, k_path, sent['plan'])
         medians.append([float(np.median(np.array(v[len(v) // 4:]))) / 1e3 for v in ticks])
-    off, on = np.median(np.array(medians), axis=0)
-    return {'normal_tick_7dof_us_median_off': round(float(off), 2),
-            'normal_tick_7dof_us_median_on': round(float(on), 2),
-            'normal_tick_ratio': round(float(np.median([b / a for a, b in medians])), 3)}
+    med_a, med_b = np.median(np.array(medians), axis=0)
+    return (round(float(med_a), 2), round(float(med_b), 2),
+            round(float(np.median([y / x for x, y in medians])), 3))
 
 
 def _paired_ticks(model, runtimes: list, stream: list, k_path: int, plan) -> list[list[int]]:
@@ -148,5 +172,6 @@ def offline_figures(old_tree: str | None = None) -> dict[str, float]:
             'controller_step_7dof_us_median': round(float(np.median(panda_us)), 2),
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             **path_tick_figures(panda), **normal_tick_figures(panda),
+            **orientation_tick_figures(panda),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

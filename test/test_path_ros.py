@@ -267,7 +267,7 @@ def test_markers_draw_the_path_reference_force_normal_and_plane(rig):
     user.wait_status(k, lambda s: s == 'running', 'a path running', user.procs)
     n_markers = len(user.markers)
     wait_for(lambda: len(user.markers) > n_markers + 2, 'markers', alive=user.procs)
-    path, ref, force, normal, plane = user.markers[-1].markers
+    path, ref, force, normal, plane, axis = user.markers[-1].markers
     assert {m.header.frame_id for m in user.markers[-1].markers} == {'base_link'}
     assert path.type == path.LINE_STRIP and path.action == path.ADD and len(path.points) > 2
     assert max(p.x for p in path.points) == pytest.approx(1.03, abs=1e-6)
@@ -277,6 +277,7 @@ def test_markers_draw_the_path_reference_force_normal_and_plane(rig):
     a, b = normal.points
     assert (a.y - b.y) == pytest.approx(0.05, abs=1e-9)
     assert plane.type == plane.CUBE and plane.scale.z < plane.scale.x
+    assert axis.action == axis.DELETE  # the paper's arm: its tool's orientation is free
 
 
 def test_the_run_is_clean(rig):

@@ -186,12 +186,8 @@ def write_path_figure(log: RunLog, out_dir: str | Path, t_start: float = 5.0) ->
     ax.set_xlabel(f'along {names[0]} [mm]')
     ax.set_ylabel(f'along {names[1]} [mm]')
     ax.set_title(f'Path in the surface plane ({what})')
-    ax.grid(True, alpha=0.3)
     ax.legend(loc='best')
-    path = Path(out_dir) / PATH_FIGURE
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    return path
+    return _save(fig, (ax,), Path(out_dir) / PATH_FIGURE)
 
 
 def write_normal_figure(log: RunLog, out_dir: str | Path) -> Path | None:
@@ -220,12 +216,7 @@ def write_normal_figure(log: RunLog, out_dir: str | Path) -> Path | None:
     ax_e.set_ylabel('angle [deg]')
     ax_e.set_ylim(bottom=0.0)
     ax_e.set_xlabel('t [s]')
-    for ax in (ax_n, ax_e):
-        ax.grid(True, alpha=0.3)
-    path = Path(out_dir) / NORMAL_FIGURE
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    return path
+    return _save(fig, (ax_n, ax_e), Path(out_dir) / NORMAL_FIGURE)
 
 
 def write_orientation_figure(log: RunLog, out_dir: str | Path,
@@ -251,9 +242,13 @@ def write_orientation_figure(log: RunLog, out_dir: str | Path,
         ax_m.plot(log.t, np.linalg.norm(m_t, axis=1), color='tab:red')
     ax_m.set_ylabel('tilt moment [N m]')
     ax_m.set_xlabel('t [s]')
-    for ax in (ax_t, ax_m):
+    return _save(fig, (ax_t, ax_m), Path(out_dir) / ORIENTATION_FIGURE)
+
+
+def _save(fig: Figure, axes: tuple, path: Path) -> Path:
+    """Grid the axes and write the figure to ``path`` (its directory made); return the path."""
+    for ax in axes:
         ax.grid(True, alpha=0.3)
-    path = Path(out_dir) / ORIENTATION_FIGURE
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     return path

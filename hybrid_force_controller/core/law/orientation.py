@@ -73,6 +73,7 @@ class ToolOrientation:
     """The target orientation and the angular reference velocity of (O2)/(O3)."""
 
     def __init__(self, cfg: OrientationConfig) -> None:
+        self.m_d_W = np.zeros(3)  # the tilt moments' target (set_moment_target; kept by reset)
         self.configure(cfg)
         self.reset()
 
@@ -89,7 +90,6 @@ class ToolOrientation:
         self.t_W: np.ndarray | None = None  # the last direction of travel
         self._tilt_dir: np.ndarray | None = None  # the tilt's direction (rate-limited)
         self._omega_d = np.zeros(3)
-        self.m_d_W = np.zeros(3) if not hasattr(self, 'm_d_W') else self.m_d_W
 
     def set_moment_target(self, m_d_W: np.ndarray) -> None:
         """Use the tilt-moment target ``m_d_W`` (N m, W; its part along n is unused)."""

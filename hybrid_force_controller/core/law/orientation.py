@@ -116,28 +116,33 @@ class ToolOrientation:
             self._a_0 = self.a_d.copy()  # R_0's axis
         if dt > 0.0:
             self._advance(n_W, xdot_d_W, dt)
-        phi = so3_log(self.R_d.dot(R_W_ee.T))
-        size = math.sqrt(float(phi.dot(phi)))
+        phi = so3_log(self.R_d.dot(R_W_ee.T)).tolist()  # 3-vectors as floats from here
+        size = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
         if size > cfg.error_limit:
-            phi *= cfg.error_limit / size
-        omega_r = self._omega_d + cfg.lambda_o * phi
-        omegadot_r = cfg.lambda_o * (self._omega_d - omega_W)
+            phi = [p * (cfg.error_limit / size) for p in phi]
+        lam, w_d = cfg.lambda_o, self._omega_d.tolist()
+        omega_r = [w + lam * p for w, p in zip(w_d, phi)]
+        omegadot_r = [lam * (w - o) for w, o in zip(w_d, omega_W.tolist())]
         if cfg.mode == 'moment' and touching:
-            dm = m_W - self.m_d_W
-            omega_r = (n_W * float(n_W.dot(omega_r))
-                       - cfg.moment_gain * (dm - n_W * float(n_W.dot(dm))))
-            omegadot_r = n_W * float(n_W.dot(omegadot_r))
-        return OrientationRef(omega_r, omegadot_r, m_W, phi, omega_W)
+            n = n_W.tolist()
+            dm = [a - b for a, b in zip(m_W.tolist(), self.m_d_W.tolist())]
+            k_r, k_a, k_m = _dot(n, omega_r), _dot(n, omegadot_r), _dot(n, dm)
+            g = cfg.moment_gain
+            omega_r = [c * k_r - g * (d - c * k_m) for c, d in zip(n, dm)]
+            omegadot_r = [c * k_a for c in n]
+        return OrientationRef(np.array(omega_r), np.array(omegadot_r), m_W, np.array(phi),
+                              omega_W)
 
     def _advance(self, n_W: np.ndarray, xdot_d_W: np.ndarray, dt: float) -> None:
         """Turn a_d toward a* (rate-limited), rebuild R_d and its rate omega_d."""
         cfg = self.cfg
-        v_t = xdot_d_W - n_W * float(n_W.dot(xdot_d_W))
-        speed = math.sqrt(float(v_t.dot(v_t)))
-        if speed > MIN_TRAVEL_SPEED:
-            self.t_W = v_t / speed
-        target = n_W
-        t_W = self._travel(n_W)
+        target, t_W = n_W, None
+        if cfg.tilt > 0.0 or cfg.spin == 'path':  # the direction of travel matters
+            v_t = xdot_d_W - n_W * float(n_W.dot(xdot_d_W))
+            speed = math.sqrt(float(v_t.dot(v_t)))
+            if speed > MIN_TRAVEL_SPEED:
+                self.t_W = v_t / speed
+            t_W = self._travel(n_W)
         if cfg.tilt > 0.0 and t_W is not None:
             target = math.cos(cfg.tilt) * n_W + math.sin(cfg.tilt) * self._tilt_toward(
                 n_W, t_W, cfg.rate_limit * dt / math.sin(cfg.tilt))
@@ -199,6 +204,10 @@ class ToolOrientation:
     def tilt_error(self, R_W_ee: np.ndarray) -> float:
         """Return the angle between the tool axis and its target axis a_d, rad."""
         return 0.0 if self.a_d is None else angle_between(self.axis_W(R_W_ee), self.a_d)
+
+
+def _dot(a: list, b: list) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def _axis_angle(u: np.ndarray, angle: float) -> np.ndarray:

@@ -337,3 +337,16 @@ def _tared_then_turned(panda, tool_mass: float) -> float:
 def test_a_tool_tared_in_one_pose_reads_no_force_turned_45_degrees(panda):
     assert _tared_then_turned(panda, 1.0) < 1e-9  # compensated at every pose (target 0.1 N)
     assert _tared_then_turned(panda, 0.0) > 3.0  # without: the weight's turn (7.1 N measured)
+
+
+def test_tool_spin_path_turns_the_x_axis_along_the_travel_at_the_rate_limit():
+    task = _task(spin='path', rate_limit=0.5)
+    n = np.array([0.0, 0.0, -1.0])
+    R0 = np.diag([1.0, -1.0, -1.0])  # x along +x, the axis along n
+    task.reference(R0, np.zeros(3), n, np.zeros(3), np.zeros(3), 0.0)
+    task.reference(R0, np.zeros(3), n, np.array([0.0, 0.05, 0.0]), np.zeros(3), 0.01)
+    assert angle_between(task.R_d[:, 0], np.array([1.0, 0.0, 0.0])) == pytest.approx(0.005)
+    for _ in range(400):  # 4 s: the quarter turn takes pi / 2 / 0.5 = 3.1 s
+        task.reference(R0, np.zeros(3), n, np.array([0.0, 0.05, 0.0]), np.zeros(3), 0.01)
+    np.testing.assert_allclose(task.R_d[:, 0], [0.0, 1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(task.R_d[:, 2], n, atol=1e-9)  # the axis stays along n

@@ -247,7 +247,7 @@ class OrientationConfig:
     tilt: float = 0.0
     spin: str = 'hold'
     lambda_o: float = 10.0
-    k_d: float = 3.0
+    k_d: float = 0.3
     rate_limit: float = 0.5
     error_limit: float = 0.3
     moment_gain: float = 5.0

@@ -279,8 +279,11 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _ori('orientation_lambda', 'double', 10.0,
          'Gain of the orientation error (SO(3) log) in the angular reference velocity, 1/s.',
          0.0, 1e3),
-    _ori('orientation_k_d', 'double', 3.0,
-         'Angular damping, the rotational part of K_D of eq. (5), N m s/rad.', 0.0, 1e4),
+    _ori('orientation_k_d', 'double', 0.3,
+         'Angular damping, the rotational part of K_D of eq. (5), N m s/rad. Its loop about '
+         'the axis of least rotational inertia I (the Panda: 0.0066 kg m^2 about the tool axis) '
+         'tolerates a delay of about (pi/2) I / orientation_k_d: 35 ms at 0.3, 3.5 ms at 3.', 0.0,
+         1e4),
     _ori('orientation_rate_limit', 'double', 0.5,
          "Largest rotation rate of the tool's target orientation, rad/s.", 0.0, 100.0,
          positive=True),

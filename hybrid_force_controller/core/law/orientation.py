@@ -45,12 +45,14 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+import pinocchio as pin
 
 from ..config.groups import OrientationConfig
-from ..model.rotations import align, angle_between, so3_log, turn_toward
+from ..model.rotations import align, angle_between, so3_log, tangent_unit, turn_toward
 
 __all__ = ['OrientationRef', 'ToolOrientation']
 
+_ZERO3 = np.zeros(3)
 MIN_TRAVEL_SPEED = 1e-3  # m/s: slower than this along the surface, t keeps its last direction
 
 
@@ -138,18 +140,17 @@ class ToolOrientation:
         cfg = self.cfg
         target, t_W = n_W, None
         if cfg.tilt > 0.0 or cfg.spin == 'path':  # the direction of travel matters
-            v_t = xdot_d_W - n_W * float(n_W.dot(xdot_d_W))
-            speed = math.sqrt(float(v_t.dot(v_t)))
-            if speed > MIN_TRAVEL_SPEED:
-                self.t_W = v_t / speed
-            t_W = self._travel(n_W)
+            moving = tangent_unit(xdot_d_W, n_W, MIN_TRAVEL_SPEED)
+            if moving is not None:
+                self.t_W = moving
+            t_W = None if self.t_W is None else tangent_unit(self.t_W, n_W)
         if cfg.tilt > 0.0 and t_W is not None:
             target = math.cos(cfg.tilt) * n_W + math.sin(cfg.tilt) * self._tilt_toward(
                 n_W, t_W, cfg.rate_limit * dt / math.sin(cfg.tilt))
         a_d = turn_toward(self.a_d, target, cfg.rate_limit * dt)
         spin = cfg.spin == 'path' and t_W is not None
         if not spin and a_d.tolist() == self.a_d.tolist():  # the target did not move
-            self._omega_d = np.zeros(3)
+            self._omega_d = _ZERO3  # never written in place
             return
         self.a_d = a_d
         R_d = align(self._a_0, a_d).dot(self.R_0)
@@ -167,20 +168,9 @@ class ToolOrientation:
         caller's ``max_angle``, ``orientation_rate_limit dt / sin(tool_tilt)``, moves the axis
         along the cone at the rate limit.
         """
-        t_d = self._tilt_dir if self._tilt_dir is not None else t_W
-        t_d = t_d - n_W * float(n_W.dot(t_d))
-        norm = math.sqrt(float(t_d.dot(t_d)))
-        t_d = t_W if norm < 1e-9 else t_d / norm
-        self._tilt_dir = turn_toward(t_d, t_W, max_angle)
+        t_d = None if self._tilt_dir is None else tangent_unit(self._tilt_dir, n_W)
+        self._tilt_dir = turn_toward(t_W if t_d is None else t_d, t_W, max_angle)
         return self._tilt_dir
-
-    def _travel(self, n_W: np.ndarray) -> np.ndarray | None:
-        """Return the last direction of travel made perpendicular to n_W (None: none yet)."""
-        if self.t_W is None:
-            return None
-        t = self.t_W - n_W * float(n_W.dot(self.t_W))
-        norm = math.sqrt(float(t.dot(t)))
-        return t / norm if norm > 1e-9 else None
 
     def _spin_along(self, R_d: np.ndarray, t_W: np.ndarray, max_angle: float) -> np.ndarray:
         """
@@ -189,14 +179,12 @@ class ToolOrientation:
         The spin held from the last tick is the start (``R_0`` then carries it on), so the spin
         also turns at most ``max_angle`` per tick.
         """
-        x = R_d[:, 0] - self.a_d * float(self.a_d.dot(R_d[:, 0]))
-        t = t_W - self.a_d * float(self.a_d.dot(t_W))
-        nx, nt = math.sqrt(float(x.dot(x))), math.sqrt(float(t.dot(t)))
-        if nx < 1e-9 or nt < 1e-9:
+        x, t = tangent_unit(R_d[:, 0], self.a_d), tangent_unit(t_W, self.a_d)
+        if x is None or t is None:
             return R_d
-        angle = min(angle_between(x / nx, t / nt), max_angle)
+        angle = min(angle_between(x, t), max_angle)
         sign = 1.0 if float(np.cross(x, t).dot(self.a_d)) >= 0.0 else -1.0
-        R_spin = _axis_angle(self.a_d, sign * angle)
+        R_spin = pin.exp3(sign * angle * self.a_d)
         self.R_0 = R_spin.dot(R_d)  # the new spin is held from here on
         self._a_0 = self.a_d.copy()
         return self.R_0.copy()
@@ -208,9 +196,3 @@ class ToolOrientation:
 
 def _dot(a: list, b: list) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _axis_angle(u: np.ndarray, angle: float) -> np.ndarray:
-    """Return the rotation by ``angle`` about the unit axis ``u`` (Rodrigues)."""
-    K = np.array(((0.0, -u[2], u[1]), (u[2], 0.0, -u[0]), (-u[1], u[0], 0.0)))
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K.dot(K)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ['align', 'angle_between', 'so3_log', 'turn_toward']
+__all__ = ['align', 'angle_between', 'so3_log', 'tangent_unit', 'turn_toward']
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
@@ -98,3 +98,10 @@ def turn_toward(a: np.ndarray, b: np.ndarray, max_angle: float) -> np.ndarray:
     out = (cos * ax + sin * ux, cos * ay + sin * uy, cos * az + sin * uz)
     k = 1.0 / math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2])
     return np.array((k * out[0], k * out[1], k * out[2]))
+
+
+def tangent_unit(v: np.ndarray, n: np.ndarray, floor: float = 1e-9) -> np.ndarray | None:
+    """Return ``v``'s part across the unit ``n``, made unit; None when shorter than ``floor``."""
+    t = v - n * float(n.dot(v))
+    norm = math.sqrt(float(t.dot(t)))
+    return t / norm if norm > floor else None

@@ -29,11 +29,13 @@ stops even if this node was held meanwhile (a publish can block on a stopped rea
 shared-memory port in Fast DDS, or the whole machine can stall).
 Lockstep (``lockstep:=true``, the deterministic reproduction mode) owns the time: it
 publishes the state and ``/clock`` (equal stamps) and steps once per received command; a
-0.2 s wall watchdog steps anyway (held or zero effort, brakes before the first command), so
-a lost message cannot deadlock the loop and a controller with ``use_sim_time`` gets its
-first tick. The surface (``stiffness``, ``surface_point``, ``surface_normal``,
-``surface_enabled``, ``surface_shape``: a plane, cylinder or sphere, sim_surface.py) can be set
-at run time; a set is validated as a whole and swapped in between two steps.
+wall watchdog steps anyway (held or zero effort, brakes before the first command), so a lost
+message cannot deadlock the loop and a controller with ``use_sim_time`` gets its first tick:
+0.2 s before the first command, ``lockstep_watchdog`` (2 s) after it, so that a machine too
+busy to answer within 0.2 s slows the run down instead of changing it (a step on no command).
+The surface (``stiffness``, ``surface_point``, ``surface_normal``, ``surface_enabled``,
+``surface_shape``: a plane, cylinder or sphere, sim_surface.py) can be set at run time; a set
+is validated as a whole and swapped in between two steps.
 
 Physics (``physics``, read at start-up): ``paper`` (default) integrates the paper's model
 (pinocchio ABA, frictionless spring: core/offline/simulator.py); ``mujoco`` steps MuJoCo compiled
@@ -77,7 +79,7 @@ from .sim_surface import surface_from_values
 
 __all__ = ['SIM_SCHEMA', 'SimNode', 'held_periods', 'main']
 
-WATCHDOG_S = 0.2
+WATCHDOG_S = 0.2  # lockstep, before the first command: the controller's first tick
 
 
 def held_periods(t_begin: float, periods: int, dt: float, t_cmd: float, timeout: float) -> int:
@@ -118,6 +120,7 @@ class SimNode(Node):
                                       self._surface, self._set_surface, unit=UNIT)
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
         self.command_timeout, self.max_catch_up = v['command_timeout'], v['max_catch_up']
+        self.lockstep_watchdog = v['lockstep_watchdog']
         check_choice('watchdog_action', v['watchdog_action'], WATCHDOG_ACTIONS)
         self.brake_on_timeout = v['watchdog_action'] == 'brake'
         # sensor clocks off by a constant (a driver on an unsynced PC), ns
@@ -270,8 +273,9 @@ class SimNode(Node):
         self._run(t_begin, periods)
 
     def _on_watchdog(self) -> None:
-        """Lockstep: step anyway when no command came for WATCHDOG_S (wall)."""
-        if time.monotonic() - self.t_pub >= WATCHDOG_S:
+        """Lockstep: a step after WATCHDOG_S (wall) without a command, lockstep_watchdog then."""
+        limit = WATCHDOG_S if self.tau_cmd is None else self.lockstep_watchdog
+        if time.monotonic() - self.t_pub >= limit:
             self.counters['watchdog_steps'] += 1
             self._run(self.sim.t, 1)
 

@@ -55,6 +55,9 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
      "(torque off: it falls, a bare torque interface) or 'brake' (it stops and holds, as a "
      "Franka's reflex or a UR's protective stop; the next valid command releases it).", {}),
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
+    ('lockstep_watchdog', 'double', 2.0, 'Lockstep: wall seconds without a command after '
+     'which the sim steps anyway, once commands have come (before the first: 0.2 s). Long, '
+     'so that a busy machine slows the run instead of changing it.', 0.01, 60.0, {}),
     ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
      'integrates (older time is dropped and counted).', 1, 100000, {}),
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench and '
@@ -65,6 +68,7 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
 
 HELP_PARAMETERS = (
     ('lockstep', 'true: own /clock and step once per command (deterministic)'),
+    ('lockstep_watchdog', 'lockstep: wall s without a command before a step anyway (2)'),
     ('physics', "'paper' (default) or 'mujoco' (tool_*, surface_damping/friction, joint_*)"),
     ('rate_hz', 'plant step rate (default 1000)'),
     ('masses', "true link masses, kg ([] = the URDF's)"),

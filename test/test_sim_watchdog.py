@@ -133,3 +133,34 @@ def test_an_unknown_watchdog_action_is_refused():
                 Parameter('watchdog_action', value='float')])
     finally:
         context.try_shutdown()
+
+
+def test_lockstep_steps_without_a_command_after_0_2_s_then_after_lockstep_watchdog():
+    """
+    Lockstep: a step per 0.2 s of silence before the first command, per lockstep_watchdog then.
+
+    Once commands came, a slow answer is waited for, so a busy machine slows the run instead
+    of changing it. The silence is set on the sim's own clock of its last publish (``t_pub``),
+    no sleep.
+    """
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('sim_watchdog'))
+    sim = SimNode(context=context, parameter_overrides=[
+        Parameter('lockstep', value=True), Parameter('lockstep_watchdog', value=1.5)])
+    try:
+        def steps_after_silence(silence_s: float) -> int:
+            steps = sim.counters['steps']
+            sim.t_pub = time.monotonic() - silence_s
+            sim._on_watchdog()
+            return sim.counters['steps'] - steps
+        assert steps_after_silence(0.0) == 0
+        assert steps_after_silence(0.25) == 1  # no command yet: the controller's first tick
+        sim._on_command(_command([0.1, 0.1]))
+        assert sim.counters['steps'] > 0 and sim.counters['watchdog_steps'] == 1
+        assert steps_after_silence(0.25) == 0  # the commands flow: a slow answer is waited for
+        assert steps_after_silence(1.0) == 0
+        assert steps_after_silence(1.6) == 1
+        assert sim.counters['watchdog_steps'] == 2
+    finally:
+        sim.destroy_node()
+        context.try_shutdown()

@@ -172,7 +172,9 @@ class Rig:
                  '-r', f'/force_torque_sensor_broadcaster/wrench:={RAW}/wrench',
                  '-r', f'/clock:={RAW}/clock']
         self.sim = NodeProcess(SIM_MODULE, logs / 'sim.log', domain_id,
-                               ['-p', 'lockstep:=true', *sim_args, *remap])
+                               ['-p', 'lockstep:=true', *sim_args, *remap,
+                                # the faults stop the controller: the sim steps on in 0.2 s
+                                '-p', 'lockstep_watchdog:=0.2'])
         self.controller = NodeProcess(CONTROLLER_MODULE,
                                       logs / 'controller.log', domain_id,
                                       ['-p', 'use_sim_time:=true', *controller_args,

@@ -4,7 +4,8 @@ The tool's orientation (law/orientation.py, the 6-D task), offline: each documen
 * model/rotations.py: the SO(3) log against pinocchio's, the shortest turn, the rate-limited turn;
 * linalg.sigma_min_sq_bound: a lower bound of the smallest squared singular value, within m;
 * (O2) and (O3) of law/orientation.py, the target's start and rate limit, the tilt's cone;
-* the law's 6-D step: J_w^T (m - k_w e_w) in the effort, e_w = omega - omega_r, and the
+* the law's 6-D step: J_w^T (m - K_w e_w) in the effort, e_w = omega - omega_r, K_w damping the
+  tilt (across the tool axis) and the spin (about it) apart, and the
   dynamically consistent inverse damped near a singularity (theta_hat holds);
 * the closed loop (the Panda on its tilted plane, masses 30 % off): ``normal`` holds the tool
   axis along n, ``tool_tilt`` at the set tilt, ``free`` leaves it tilted;
@@ -173,12 +174,15 @@ def test_the_6d_step_adds_the_angular_terms_to_the_effort(panda):
     omega = kin.J_w @ qdot
     rot = task.reference(kin.R_W_ee, omega, params.law.n, np.zeros(3), np.array([0.0, 0.1, 0.0]),
                          0.0)
-    out = ctrl.step(q, qdot, np.zeros(3), ref, 0.0, kin=kin, rot=rot, k_w=3.0)
+    out = ctrl.step(q, qdot, np.zeros(3), ref, 0.0, kin=kin, rot=rot, k_w=(3.0, 0.3))
     np.testing.assert_allclose(ctrl.e_w, omega - rot.omega_r)
     without = ctrl.step(q, qdot, np.zeros(3), ref, 0.0, kin=kin,
-                        rot=rot._replace(m_W=np.zeros(3)), k_w=0.0)
+                        rot=rot._replace(m_W=np.zeros(3)), k_w=(0.0, 0.0))
+    a = kin.R_W_ee @ np.array([0.0, 0.0, 1.0])  # the tool axis: the spin's damping about it
+    np.testing.assert_allclose(rot.a_W, a)
+    K_w = 3.0 * (np.eye(3) - np.outer(a, a)) + 0.3 * np.outer(a, a)
     np.testing.assert_allclose(out.tau - without.tau,
-                               kin.J_w.T @ (rot.m_W - 3.0 * ctrl.e_w), atol=1e-9)
+                               kin.J_w.T @ (rot.m_W - K_w @ ctrl.e_w), atol=1e-9)
     assert not ctrl.damped
 
 
@@ -191,10 +195,10 @@ def test_the_redundant_inverse_is_damped_near_a_singularity(panda):
     rot = _task().reference(kin.R_W_ee, np.zeros(3), np.array([0.0, 0.0, -1.0]), np.zeros(3),
                             np.zeros(3), 0.0)
     theta = ctrl.theta_hat.copy()
-    out = ctrl.step(q, np.full(7, 0.05), np.zeros(3), ref, 0.001, rot=rot, k_w=3.0)
+    out = ctrl.step(q, np.full(7, 0.05), np.zeros(3), ref, 0.001, rot=rot, k_w=(3.0, 0.3))
     assert ctrl.damped and np.all(np.isfinite(out.tau))
     np.testing.assert_array_equal(ctrl.theta_hat, theta)  # theta_hat holds
-    ctrl.step(np.array(PANDA_Q0), np.zeros(7), np.zeros(3), ref, 0.001, rot=rot, k_w=3.0)
+    ctrl.step(np.array(PANDA_Q0), np.zeros(7), np.zeros(3), ref, 0.001, rot=rot, k_w=(3.0, 0.3))
     assert not ctrl.damped
 
 
@@ -248,6 +252,8 @@ def test_tool_tilt_leans_the_axis_toward_the_direction_of_travel(panda, runs):
     ({'tool_tilt': 0.6}, 'tool_tilt'),
     ({'orientation_lambda': float('nan')}, 'orientation_lambda'),
     ({'moment_gain': -1.0}, 'moment_gain'),
+    ({'orientation_k_d_spin': -0.3}, 'orientation_k_d_spin'),
+    ({'orientation_k_d_spin': float('inf')}, 'orientation_k_d_spin'),
 ])
 def test_bad_orientation_settings_are_refused_naming_them(panda, values, name):
     with pytest.raises(ParameterValidationError, match=name):

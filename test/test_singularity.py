@@ -11,7 +11,9 @@ from __future__ import annotations
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.law.control_law import HybridForceController
 from hybrid_force_controller.core.law.reference import Reference
-from hybrid_force_controller.core.model.linalg import damped_inverse, sigma_min_sq, small_inverse
+from hybrid_force_controller.core.law.task_inverse import redundant_inverse
+from hybrid_force_controller.core.model.linalg import (damped_inverse, sigma_min_sq,
+                                                       sigma_min_sq_bound, small_inverse)
 from hybrid_force_controller.core.model.robot_model import RobotModel
 import numpy as np
 import pytest
@@ -90,3 +92,30 @@ def test_the_law_holds_theta_hat_and_bounds_the_effort_near_full_reach(x, damped
         np.testing.assert_array_equal(tau, out[0.0][0])
         np.testing.assert_array_equal(dtheta, out[0.0][1])
         assert dtheta.any()
+
+
+# ------------------------------------------------------------ the redundant 6-D task's inverse
+@pytest.mark.parametrize('seed', range(4))
+def test_the_redundant_inverse_inverts_j_and_is_damped_below_sigma0(seed):
+    """
+    task_inverse.py: above sigma0 ``J Jbar = I`` and ``J N = 0``; below it damped and bounded.
+
+    J is 6 x 7 with its smallest singular value 1.0, 0.3, 0.05, 1e-4 (seeds 0-3), M a random
+    symmetric positive definite inertia.
+    """
+    rng = np.random.default_rng(seed)
+    U, _, Vt = np.linalg.svd(rng.normal(size=(6, 7)))
+    s = np.linspace(2.0, 1.0, 6)
+    s[-1] = (1.0, 0.3, 0.05, 1e-4)[seed]
+    J = U @ np.hstack((np.diag(s), np.zeros((6, 1)))) @ Vt
+    B = rng.normal(size=(7, 7))
+    M_inv = np.linalg.inv(B @ B.T + 0.5 * np.eye(7))
+    J_pinv, N, damped = redundant_inverse(M_inv, J, SIGMA0, np.eye(7))
+    assert damped == (sigma_min_sq_bound(J) < SIGMA0 ** 2) == (seed >= 2)
+    assert np.all(np.isfinite(J_pinv)) and np.all(np.isfinite(N))
+    if not damped:
+        np.testing.assert_allclose(J @ J_pinv, np.eye(6), atol=1e-9)
+        np.testing.assert_allclose(J @ N, 0.0, atol=1e-9)
+    else:
+        assert np.abs(J @ J_pinv - np.eye(6)).max() > 1e-3  # damped: not the exact inverse
+        assert np.linalg.norm(J_pinv, 2) < 1e3  # bounded, where the exact one grows as 1/s

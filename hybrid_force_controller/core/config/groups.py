@@ -215,7 +215,8 @@ TOOL_SPINS = ('hold', 'path')
 #: OrientationConfig field -> schema name (the errors name the parameters).
 ORIENTATION_NAMES = {'mode': 'orientation_mode', 'tool_axis': 'tool_axis', 'tilt': 'tool_tilt',
                      'spin': 'tool_spin', 'lambda_o': 'orientation_lambda',
-                     'k_d': 'orientation_k_d', 'rate_limit': 'orientation_rate_limit',
+                     'k_d': 'orientation_k_d', 'k_d_spin': 'orientation_k_d_spin',
+                     'rate_limit': 'orientation_rate_limit',
                      'error_limit': 'orientation_error_limit', 'moment_gain': 'moment_gain'}
 
 
@@ -235,7 +236,9 @@ class OrientationConfig:
     spin : ``hold`` (the spin about the axis kept from the start) or ``path`` (the end
         effector's x axis turned along the path's direction of travel).
     lambda_o : the orientation error's gain in the angular reference velocity, 1/s.
-    k_d : the angular damping, the rotational part of K_D of eq. (5), N m s/rad.
+    k_d : the angular damping about the two axes across the tool axis (the tilt), the
+        rotational part of K_D of eq. (5), N m s/rad.
+    k_d_spin : the angular damping about the tool axis (the spin), N m s/rad.
     rate_limit : largest rotation rate of the target, rad/s.
     error_limit : the orientation error is saturated to this angle, rad.
     moment_gain : ``moment`` mode's admittance, rad/(s N m).
@@ -247,10 +250,16 @@ class OrientationConfig:
     tilt: float = 0.0
     spin: str = 'hold'
     lambda_o: float = 10.0
-    k_d: float = 0.3
+    k_d: float = 3.0
+    k_d_spin: float = 0.3
     rate_limit: float = 0.5
     error_limit: float = 0.3
     moment_gain: float = 5.0
+
+    @property
+    def k_w(self) -> tuple[float, float]:
+        """Return the angular damping (across the tool axis, about it), N m s/rad."""
+        return self.k_d, self.k_d_spin
 
     def __post_init__(self) -> None:
         if self.mode not in ORIENTATION_MODES:
@@ -265,7 +274,8 @@ class OrientationConfig:
             raise OrientationConfigError(
                 f'tool_axis must be 3 finite numbers, not all 0, got {list(self.tool_axis)}')
         object.__setattr__(self, 'tool_axis', tuple(c / norm for c in axis))
-        for name in ('tilt', 'lambda_o', 'k_d', 'rate_limit', 'error_limit', 'moment_gain'):
+        for name in ('tilt', 'lambda_o', 'k_d', 'k_d_spin', 'rate_limit', 'error_limit',
+                     'moment_gain'):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not math.isfinite(value) or value < 0.0:

@@ -279,11 +279,13 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _ori('orientation_lambda', 'double', 10.0,
          'Gain of the orientation error (SO(3) log) in the angular reference velocity, 1/s.',
          0.0, 1e3),
-    _ori('orientation_k_d', 'double', 0.3,
-         'Angular damping, the rotational part of K_D of eq. (5), N m s/rad. Its loop about '
-         'the axis of least rotational inertia I (the Panda: 0.0066 kg m^2 about the tool axis) '
-         'tolerates a delay of about (pi/2) I / orientation_k_d: 35 ms at 0.3, 3.5 ms at 3.', 0.0,
-         1e4),
+    _ori('orientation_k_d', 'double', 3.0,
+         'Angular damping about the two axes across the tool axis (the tilt), the rotational '
+         'part of K_D of eq. (5), N m s/rad. A loop of rotational inertia I tolerates a delay of '
+         'about (pi/2) I / k: the Panda tilts with 0.14-0.38 kg m^2, 73 ms at 3.', 0.0, 1e4),
+    _ori('orientation_k_d_spin', 'double', 0.3,
+         'Angular damping about the tool axis (the spin), N m s/rad. The Panda spins its tool '
+         'with 0.0066 kg m^2: 35 ms of delay tolerated at 0.3, 3.5 ms at 3.', 0.0, 1e4),
     _ori('orientation_rate_limit', 'double', 0.5,
          "Largest rotation rate of the tool's target orientation, rad/s.", 0.0, 100.0,
          positive=True),

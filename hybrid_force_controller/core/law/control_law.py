@@ -71,8 +71,9 @@ from .law_io import ApproachRef, ControlError, ControlOutput
 from .moving_normal import MovingNormal
 from .orientation import OrientationRef
 from .reference import Reference
+from .task_inverse import angular_damping, redundant_inverse
 from ..config.params import LawGains
-from ..model.linalg import damped_inverse, sigma_min_sq_bound, small_inverse
+from ..model.linalg import damped_inverse, small_inverse
 from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
@@ -289,7 +290,8 @@ class HybridForceController:
              dt: float, *, in_contact: bool = True, approach: ApproachRef | None = None,
              r_bias: tuple[float, float] = (0.0, 0.0),
              kin: TaskKinematics | None = None, adapt: bool = True,
-             rot: OrientationRef | None = None, k_w: float = 0.0) -> ControlOutput:
+             rot: OrientationRef | None = None,
+             k_w: tuple[float, float] = (0.0, 0.0)) -> ControlOutput:
         """
         One control tick: eqs. (5)/(6) with (8), (11) and the adaptation (26).
 
@@ -318,13 +320,14 @@ class HybridForceController:
         rot : OrientationRef, optional
             The angular reference of the 6-D task (orientation.py): omega_r and its rate are
             stacked under r and rdot, J_w under J; None: the translational task of [1].
-        k_w : float
-            With ``rot``: the angular damping, N m s/rad.
+        k_w : tuple of float
+            With ``rot``: the angular damping across the tool axis and about it (the tilt's
+            and the spin's), N m s/rad: ``K_w = k_t (I - a a^T) + k_s a a^T``, a = rot.a_W.
 
         Returns
         -------
         ControlOutput
-            With ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e) [+ J_w^T (m - k_w e_w)]``
+            With ``tau = Y_q theta_hat + tau_0 + J^T (f - K_D e) [+ J_w^T (m - K_w e_w)]``
             (eq. 5 in joint space).
 
         """
@@ -348,7 +351,7 @@ class HybridForceController:
         tau = Y_q.dot(self.theta_hat) + kin.J_ee.T.dot(f - g.k_d * e)
         self.e_w = None if rot is None else rot.omega_W - rot.omega_r
         if rot is not None:
-            tau += kin.J_w.T.dot(rot.m_W - k_w * self.e_w)
+            tau += kin.J_w.T.dot(rot.m_W - angular_damping(self.e_w, rot.a_W, k_w))
         if tau_0 is not None:
             tau += tau_0
         if N is not None:  # null-space posture damping
@@ -371,10 +374,11 @@ class HybridForceController:
         Return J's inverse (damped near a singularity, ``self.damped``) and N (redundant arms).
 
         A square J: linalg.damped_inverse. More joints than rows: the dynamically consistent
-        inverse of :meth:`_pinv`, damped the same way.
+        inverse of task_inverse.py, damped the same way.
         """
         if J.shape[1] > J.shape[0]:
-            J_pinv, N, self.damped = self._pinv(q, J, sigma0)
+            J_pinv, N, self.damped = redundant_inverse(self.model.inertia_inverse(q), J, sigma0,
+                                                       self._eye_n)
             return J_pinv, N
         J_pinv, self.damped = damped_inverse(J, sigma0)
         return J_pinv, None
@@ -398,29 +402,3 @@ class HybridForceController:
             self.h = min(max(self.h + df_n * dt, -limit), limit)
         else:
             self.h = min(self.h, 0.0)
-
-    def _pinv(self, q: np.ndarray, J: np.ndarray,
-              sigma0: float) -> tuple[np.ndarray, np.ndarray, bool]:
-        r"""
-        Dynamically consistent inverse ``Jbar = M^-1 J^T (J M^-1 J^T)^-1``, ``N`` and ``damped``.
-
-        For redundant arms (joints > task dimension) eqs. (35)-(37) generalise with Jbar in
-        place of J^-1: ``qdot_r = Jbar r``, ``qddot_r = Jbar (rdot - Jdot qdot_r)`` (the
-        derivative of Jbar is neglected), and ``N = I - Jbar J`` projects onto motions that
-        leave the end effector still; ``-k_null N^T N s`` damps them. M is the URDF inertia.
-
-        Near a singularity it is damped as linalg.damped_inverse damps a square J, in the metric
-        of M^-1 (:math:`\bar m^{-1} = \operatorname{tr} M^{-1} / n`; for ``M = m I`` exactly damped
-        least squares): with :math:`\tilde\sigma^2` the lower bound of J's smallest squared
-        singular value of linalg.sigma_min_sq_bound, below ``sigma0``
-        :math:`\bar J = M^{-1} J^T (J M^{-1} J^T + \mu^2 \bar m^{-1} I)^{-1}`,
-        :math:`\mu^2 = \sigma_0^2 - \tilde\sigma^2`; theta_hat then holds.
-        """
-        M_inv = self.model.inertia_inverse(q)
-        JM = J.dot(M_inv)
-        A = JM.dot(J.T)
-        mu2 = sigma0 * sigma0 - sigma_min_sq_bound(J) if sigma0 > 0.0 else 0.0
-        if mu2 > 0.0:
-            A[np.diag_indices_from(A)] += mu2 * sum(M_inv.diagonal().tolist()) / len(M_inv)
-        J_pinv = JM.T.dot(small_inverse(A))
-        return J_pinv, self._eye_n - J_pinv.dot(J), mu2 > 0.0

@@ -60,8 +60,8 @@ class OrientationRef(NamedTuple):
     """
     One tick's angular reference, W.
 
-    omega_r and its rate, the moment fed forward (N m), the error phi of (O1) (rad) and the
-    tool's angular velocity omega (rad/s) it was computed at.
+    omega_r and its rate, the moment fed forward (N m), the error phi of (O1) (rad), the
+    tool's angular velocity omega (rad/s) and its axis a_W (unit) it was computed at.
     """
 
     omega_r: np.ndarray
@@ -69,6 +69,7 @@ class OrientationRef(NamedTuple):
     m_W: np.ndarray
     phi: np.ndarray
     omega_W: np.ndarray
+    a_W: np.ndarray
 
 
 class ToolOrientation:
@@ -133,7 +134,7 @@ class ToolOrientation:
             omega_r = [c * k_r - g * (d - c * k_m) for c, d in zip(n, dm)]
             omegadot_r = [c * k_a for c in n]
         return OrientationRef(np.array(omega_r), np.array(omegadot_r), m_W, np.array(phi),
-                              omega_W)
+                              omega_W, self.axis_W(R_W_ee))
 
     def _advance(self, n_W: np.ndarray, xdot_d_W: np.ndarray, dt: float) -> None:
         """Turn a_d toward a* (rate-limited), rebuild R_d and its rate omega_d."""

@@ -177,7 +177,7 @@ class ControllerRuntime(RuntimeInterface):
                                  approach=approach, r_bias=self._handover_bias(),
                                  kin=self._in.kin(), adapt=not self.recovery.frozen,
                                  rot=self._rotation(ref, dt_state, touching),
-                                 k_w=self._params.orientation.k_d)
+                                 k_w=self._params.orientation.k_w)
         except (ControlError, ModelError, np.linalg.LinAlgError) as exc:
             self.counters['control_errors'] += 1
             return self._safe(f_W, f'control law failed: {exc}', t)

@@ -5,14 +5,17 @@ The sim on MuJoCo (``physics:=mujoco``) over real DDS, in real time.
   the tool's weight (the force the environment and gravity exert on the tool, sensor frame);
 * closed loops on the wall clock, the config files of ``demo --physics mujoco``: the paper's arm
   (frictionless, and mu = 0.3) and the Panda (5 N on a table along a 10 cm line, mu = 0.3, sim
-  masses +/-30 % off, a 0.1 kg tool the controller compensates): contact is kept after the first
-  touch and the errors over the whole run after t = 5 s stay within loose bounds (a loaded 2-core
-  machine; docs/results_mujoco.md has the measured figures), and the run is clean (no callback
-  error, no safe mode);
+  masses +/-30 % off, a 0.1 kg tool the controller compensates): contact is kept from 1 s after
+  the first touch and the errors from 5 s after it stay within the measured bounds (the windows
+  start at the first touch, not at the first sample: a start-up slow to find its inputs, 2.8 s
+  on one loaded CPU, is no contact lost), and the run is clean (no callback error, no safe
+  mode);
 * bad settings (unknown physics, a zero tool radius, a zero surface normal) stop the sim at
   start-up with a clear error; at run time a stiffness the table top cannot take is refused.
 """
 from __future__ import annotations
+
+import math
 
 from geometry_msgs.msg import WrenchStamped
 from helpers.bounds import check_bounds
@@ -81,17 +84,18 @@ def test_closed_loop_in_real_time_on_mujoco(tmp_path, arm):
         try:
             for p in procs:
                 p.start()
-            wait_for(lambda: meter.latest > 0.0, 'the loop to run', alive=procs)
-            t_start = meter.latest
-            wait_for(lambda: meter.latest >= t_start + 5.0 + RUN_S, f'{RUN_S} s of run',
+            wait_for(lambda: math.isfinite(meter.first_contact()), 'the first touch',
+                     alive=procs)
+            t_touch = meter.first_contact()  # not the first sample: a start-up's time is no loss
+            wait_for(lambda: meter.latest >= t_touch + 5.0 + RUN_S, f'{RUN_S} s of run',
                      alive=procs)
             ctrl, sim = log.fresh_diag(CTRL_NAME, procs), log.fresh_diag('sim', procs)
             alive = all(p.alive for p in procs)
         finally:
             for p in procs:
                 p.stop()
-    after_touch = meter.figures(t_start + 1.0, meter.latest)  # first touch: within 1 s
-    whole = meter.figures(t_start + 5.0, meter.latest)
+    after_touch = meter.figures(t_touch + 1.0, meter.latest)  # the first touch's second after
+    whole = meter.figures(t_touch + 5.0, meter.latest)
     print(arm, 'after touch', after_touch, 'from 5 s', whole)
     report_figure(current_test(), after_touch=after_touch, from_5_s=whole)
     tails = '\n'.join(p.tail(1500) for p in procs)

@@ -38,6 +38,7 @@ class TrackingMeter:
         self.x: dict[float, np.ndarray] = {}
         self.x_d: dict[float, np.ndarray] = {}
         self.f: list[tuple[float, float]] = []
+        self._t_touch = math.nan  # first_contact's stamp, once found
         self.theta: list[tuple[float, tuple[float, ...]]] = []  # (wall time of reception, row)
         node.create_subscription(PointStamped, 'hybrid_force_controller/x',
                                  lambda m: self._point(self.x, m), 1000)
@@ -102,6 +103,13 @@ class TrackingMeter:
         if len(outside) == 0:
             return 0.0
         return math.nan if outside[-1] == len(t) - 1 else float(t[outside[-1] + 1] - t0)
+
+    def first_contact(self) -> float:
+        """Stamp of the first true-force sample in contact (f_d 0, the core predicate), s (NaN)."""
+        with self.lock:
+            if math.isnan(self._t_touch):
+                self._t_touch = next((t for t, f in self.f if in_contact(f)), math.nan)
+            return self._t_touch
 
     @property
     def latest(self) -> float:

@@ -22,6 +22,7 @@ from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, ROOT, Spun, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
+from hybrid_force_controller.ros.common.gateway import fed_into_cell
 from hybrid_force_controller.ros.lab.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
 import pytest
@@ -49,6 +50,23 @@ def test_cell_domains(env, public, cell):
 def test_cell_domains_refused(env, says):
     with pytest.raises(ValueError, match=says):
         cell_domains(env)
+
+
+@pytest.mark.parametrize('topic, fed', [
+    ('/cell/arm1/hybrid_force_controller/path', True),
+    ('/hybrid_force_controller/target_wrench', True),
+    ('/robot_description', True),
+    ('/joint_states', False),
+    ('/cell/arm1/joint_states', False),
+    ('/effort_controller/commands', False),
+    ('/arm2/effort_controller/commands', False),
+    ('/force_torque_sensor_broadcaster/wrench', False),
+    ('/clock', False),
+    ('/sim/contact_wrench', False),  # published in the cell once: plant_topics
+])
+def test_the_loops_topics_are_never_fed_into_the_cell(topic, fed):
+    """Even before the cell's writer of a loop topic is discovered (its reader seen first)."""
+    assert fed_into_cell(topic, {'/sim/contact_wrench'}) is fed
 
 
 @pytest.fixture(scope='module')

@@ -19,9 +19,11 @@ participant. Every
 * **topics the cell only subscribes**: a subscription on the user's domain whose messages
   are published into the cell (``~/path``, ``~/reference``, ``~/target_wrench``; a
   ``robot_description`` from outside). A topic a cell node has ever published is never fed
-  from outside: a user's ``joint_states`` or ``effort_controller/commands`` cannot reach the
-  loop, even while the graph momentarily misses the sim's writer (a best-effort writer of the
-  gateway's appeared on the cell's ``joint_states`` that way).
+  from outside, nor is the loop's own I/O (``joint_states``, ``effort_controller/commands``,
+  the wrench, ``clock``: :data:`LOOP_TOPICS`, in any namespace): a user's joint states or
+  efforts cannot reach the loop, even while the graph momentarily misses the writer (a
+  best-effort writer of the gateway's appeared on the cell's ``joint_states`` that way, and on
+  one CPU one of the efforts before the controller's writer was discovered).
 
 Messages pass as serialized bytes (no conversion). The scan runs on the user side's thread;
 what it changes on the cell's node (the mirrors' subscriptions, the services' clients) it hands
@@ -64,6 +66,17 @@ SERVICE_TIMEOUT_S = 10.0
 GATEWAY_NODE = '_hfc_gateway'
 NO_TYPE_SERVICE = [Parameter('start_type_description_service', value=False)]
 _PENDING = object()  # a mirror's cell subscription asked of the cell's thread, not made yet
+#: the loop's own topics (their names in any namespace): never fed from outside, even before the
+#: cell's writer of them is discovered (one CPU: the sim's reader of the efforts was seen first,
+#: and the gateway made a writer of the efforts in the cell)
+LOOP_TOPICS = ('joint_states', 'effort_controller/commands',
+               'force_torque_sensor_broadcaster/wrench', 'clock')
+
+
+def fed_into_cell(topic: str, plant_topics: set[str]) -> bool:
+    """Say whether a topic the cell subscribes (nobody there publishes) may be fed from outside."""
+    return topic not in plant_topics and not any(
+        topic == f'/{t}' or topic.endswith(f'/{t}') for t in LOOP_TOPICS)
 
 
 def import_type(name: str) -> Any:
@@ -199,7 +212,7 @@ class Gateway:
             if self.missing[topic] < MISSING_SCANS:
                 published.add(topic)
         subscribed_only = {t for t, infos in graph.sub_infos.items()
-                           if infos and t not in self.plant_topics}
+                           if infos and fed_into_cell(t, self.plant_topics)}
         self._sync_into(graph, subscribed_only)  # first: a topic that turned published
         self._sync_out(graph, published)  # must not see the gateway's own reader as a user
 

@@ -75,6 +75,16 @@ def test_the_singularity_guard_is_set_live_and_off_with_an_integer_zero(controll
     assert node.params.law.singular_sigma == 0.1
 
 
+def test_the_spins_damping_is_set_live_with_an_integer(controller):
+    """``ros2 param set ... orientation_k_d_spin 1`` (an integer) sets the spin's damping."""
+    node, client = controller
+    assert _get(client, 'orientation_k_d_spin') == 0.3
+    (result,) = _set(client, orientation_k_d_spin=1)
+    assert result.successful, result.reason
+    assert node.params.orientation.k_w == (3.0, 1.0)  # (the tilt's, the spin's)
+    assert _set(client, orientation_k_d_spin=0.3)[0].successful
+
+
 def test_integer_normal_is_normalised(controller):
     node, client = controller
     (result,) = _set(client, n=[0, 2, 0])
@@ -102,6 +112,7 @@ def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
     ('singular_sigma', -0.1),
     ('singular_sigma', math.inf),
     ('rate_hz', 500.0),
+    ('orientation_k_d_spin', -0.3),
 ])
 def test_bad_value_is_rejected_and_nothing_changes(controller, name, value):
     node, client = controller

@@ -71,12 +71,12 @@ _PENDING = object()  # a mirror's cell subscription asked of the cell's thread, 
 #: and the gateway made a writer of the efforts in the cell)
 LOOP_TOPICS = ('joint_states', 'effort_controller/commands',
                'force_torque_sensor_broadcaster/wrench', 'clock')
+_LOOP_SUFFIXES = tuple(f'/{t}' for t in LOOP_TOPICS)  # '/clock' is itself such a suffix
 
 
 def fed_into_cell(topic: str, plant_topics: set[str]) -> bool:
     """Say whether a topic the cell subscribes (nobody there publishes) may be fed from outside."""
-    return topic not in plant_topics and not any(
-        topic == f'/{t}' or topic.endswith(f'/{t}') for t in LOOP_TOPICS)
+    return topic not in plant_topics and not topic.endswith(_LOOP_SUFFIXES)
 
 
 def import_type(name: str) -> Any:

@@ -21,7 +21,7 @@ setup(
     # On a machine without apt ROS, `pip install .[pypi]` brings ROS 2 Jazzy from PyPI.
     extras_require={
         'pypi': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp',
-                 'pin', 'rosbags', 'matplotlib', 'xacro',
+                 'pin', 'rosbags', 'matplotlib', 'xacro', 'numba',
                  'mujoco==4.0.0'],  # physics:=mujoco only (sim_node/), 4.x API
         # pytest 9 keeps a node's id in _id: pytest-xdist 3.8's --dist loadgroup then groups
         # nothing (it sets _nodeid), and real-time modules would run side by side

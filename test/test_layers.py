@@ -3,7 +3,9 @@ The layer rule and the groups inside each layer, derived from the tree.
 
 Layers: core <- tools <- ros (and sim_node).
 
-* ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself;
+* ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself, and numba
+  in ``core/law/kernels.py`` alone (the compiled tick, imported by law/tick_impl.py when
+  ``tick_impl`` is compiled: ``tick_impl: python`` never loads numba);
 * ``tools/`` imports the standard library, numpy, rosbags, matplotlib, ``core`` and ``tools``
   (never rclpy or a ROS message package);
 * only ``ros/`` and ``sim_node/`` import rclpy;
@@ -36,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / 'hybrid_force_controller'
 STDLIB = set(sys.stdlib_module_names) | {'__future__'}
 ALLOWED = {
-    'core': STDLIB | {'numpy', 'pinocchio'},
+    'core': STDLIB | {'numpy', 'pinocchio', 'numba'},
     'tools': STDLIB | {'numpy', 'rosbags', 'matplotlib'},
 }
 ALLOWED_LAYERS = {'core': {'core'}, 'tools': {'core', 'tools'}}
@@ -162,6 +164,24 @@ def test_rclpy_is_imported_only_by_adapters():
 
 
 MUJOCO_USERS = {'sim_node/mujoco_scene.py', 'sim_node/mujoco_plant.py'}
+
+
+def test_numba_is_imported_only_by_the_kernels():
+    users = {str(p.relative_to(ROOT)) for p in [*PKG.rglob('*.py'), *(ROOT / 'sim_node').rglob(
+        '*.py')] if 'numba' in {n.split('.')[0] for n in _imports(p)}}
+    assert users == {'hybrid_force_controller/core/law/kernels.py'}
+
+
+def test_the_python_tick_does_not_load_numba():
+    code = ('import sys; from hybrid_force_controller.core.law.control_law import '
+            'HybridForceController as H; from hybrid_force_controller.core.model.robot_model '
+            'import RobotModel; from hybrid_force_controller.core.config.params import '
+            "build_params; m = RobotModel.from_urdf(); H(m, build_params(m, {'tick_impl': "
+            "'python'}).law); print('numba' in sys.modules)")
+    proc = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == 'False'
 
 
 def test_mujoco_is_imported_only_by_the_mujoco_plant():

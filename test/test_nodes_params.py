@@ -113,6 +113,7 @@ def test_unstable_gains_are_rejected_with_both_sides_of_eq_29(controller):
     ('singular_sigma', math.inf),
     ('rate_hz', 500.0),
     ('orientation_k_d_spin', -0.3),
+    ('tick_impl', 'python'),  # read-only: chosen at configure, never switched under a tick
 ])
 def test_bad_value_is_rejected_and_nothing_changes(controller, name, value):
     node, client = controller
@@ -123,6 +124,13 @@ def test_bad_value_is_rejected_and_nothing_changes(controller, name, value):
     assert result.reason
     assert list(np.atleast_1d(_get(client, name))) == list(np.atleast_1d(before))
     assert node.params is params_before
+
+
+def test_the_node_ticks_compiled_by_default(controller):
+    """tick_impl compiled: the numba kernels were loaded at configure (tick_impl.py)."""
+    node, client = controller
+    assert _get(client, 'tick_impl') == 'compiled'
+    assert node.runtime.ctrl.tick_note.startswith('tick_impl compiled: numba kernels')
 
 
 def test_atomic_multi_set_with_one_bad_value_changes_nothing(controller):

@@ -15,7 +15,7 @@ import math
 __all__ = ['NormalConfig', 'NormalConfigError', 'NormalEstimateError', 'ORIENTATION_MODES',
            'ORIENTATION_NAMES', 'OrientationConfig', 'OrientationConfigError', 'RecoveryConfig',
            'RecoveryConfigError', 'StiffnessConfig', 'StiffnessConfigError', 'StiffnessError',
-           'TOOL_SPINS']
+           'TICK_IMPLS', 'TOOL_SPINS']
 
 
 class StiffnessError(ValueError):
@@ -212,6 +212,8 @@ class OrientationConfigError(ValueError):
 
 ORIENTATION_MODES = ('free', 'normal', 'moment')
 TOOL_SPINS = ('hold', 'path')
+#: the law's per-tick arithmetic (law/tick_impl.py): numba kernels or the numpy reference
+TICK_IMPLS = ('compiled', 'python')
 #: OrientationConfig field -> schema name (the errors name the parameters).
 ORIENTATION_NAMES = {'mode': 'orientation_mode', 'tool_axis': 'tool_axis', 'tilt': 'tool_tilt',
                      'spin': 'tool_spin', 'lambda_o': 'orientation_lambda',

@@ -23,7 +23,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .groups import (NormalConfig, NormalConfigError, OrientationConfig, OrientationConfigError,
-                     RecoveryConfig, RecoveryConfigError, StiffnessConfig, StiffnessConfigError)
+                     RecoveryConfig, RecoveryConfigError, StiffnessConfig, StiffnessConfigError,
+                     TICK_IMPLS)
 from .schema import CONTROLLER_SCHEMA, MODEL_SCHEMA, NORMAL_FIELDS, ORIENTATION_FIELDS, ParamSpec
 from .schema import RECOVERY_FIELDS, STIFFNESS_FIELDS
 
@@ -61,6 +62,7 @@ class LawGains:
     theta_min: np.ndarray
     theta_max: np.ndarray
     integral_limit: float
+    tick_impl: str = 'compiled'
 
 
 @dataclass(frozen=True)
@@ -236,6 +238,13 @@ def _theta(v: Mapping[str, Any], model: Any) -> tuple[np.ndarray, np.ndarray, np
     return theta0, lo, hi
 
 
+def _tick_impl(value: Any) -> str:
+    if value not in TICK_IMPLS:
+        raise ParameterValidationError(
+            f'tick_impl must be one of {list(TICK_IMPLS)}, got {value!r}')
+    return value
+
+
 def _law_gains(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> LawGains:
     check_stability(s['lambda1'], s['lambda2'], s['k_max'])
     theta0, lo, hi = _theta(v, model)
@@ -246,7 +255,7 @@ def _law_gains(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> LawG
         k_max=s['k_max'], k_s=s['k_s'], k_a=s['k_a'],
         adapt_error_limit=s['adapt_error_limit'], adapt_dead_zone=s['adapt_dead_zone'],
         singular_sigma=s['singular_sigma'], theta_hat0=theta0, theta_min=lo,
-        theta_max=hi, integral_limit=s['integral_limit'])
+        theta_max=hi, integral_limit=s['integral_limit'], tick_impl=_tick_impl(v['tick_impl']))
 
 
 def _runtime_config(v: Mapping[str, Any], s: Mapping[str, float], model: Any) -> RuntimeConfig:

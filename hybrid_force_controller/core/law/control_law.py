@@ -66,14 +66,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .adaptation import adapt_theta, adaptation_weight
+from .adaptation import adapt_theta
 from .law_io import ApproachRef, ControlError, ControlOutput
 from .moving_normal import MovingNormal
 from .orientation import OrientationRef
 from .reference import Reference
-from .task_inverse import angular_damping, redundant_inverse
+from .task_inverse import angular_damping
+from .tick_impl import make_tick
 from ..config.params import LawGains
-from ..model.linalg import damped_inverse, small_inverse
+from ..model.linalg import small_inverse
 from ..model.robot_model import RobotModel, TaskKinematics
 
 __all__ = ['ApproachRef', 'ControlError', 'ControlOutput', 'HybridForceController',
@@ -110,7 +111,7 @@ class HybridForceController:
     def __init__(self, model: RobotModel, gains: LawGains) -> None:
         self.model = model
         self._project = model.parameter_set.project
-        self._eye_n = np.eye(model.n)
+        self._tick = make_tick(gains.tick_impl, model.n)  # compiled: loaded here, at configure
         self._d: _Derived | None = None
         self._k = _Compliance()
         self._moving: MovingNormal | None = None  # a moving normal (set_normal), else d.n
@@ -120,6 +121,11 @@ class HybridForceController:
         self._r6 = (np.zeros(6), np.zeros(6))  # the 6-D task's r and rdot, filled in place
         self.set_gains(gains)
         self.reset()
+
+    @property
+    def tick_note(self) -> str:
+        """Say which per-tick arithmetic runs (tick_impl.py), and how it loaded."""
+        return self._tick.note
 
     @property
     def gains(self) -> LawGains:
@@ -343,48 +349,28 @@ class HybridForceController:
             r6, rdot6 = self._r6
             r6[:3], r6[3:], rdot6[:3], rdot6[3:] = r, rot.omega_r, rdot, rot.omegadot_r
             r, rdot = r6, rdot6
-        J_pinv, N = self._inverse(q, J, g.singular_sigma)
-        qdot_r = J_pinv.dot(r)
-        qddot_r = J_pinv.dot(rdot - Jdot.dot(qdot_r))
+        J_pinv, N, qdot_r, qddot_r, self.damped = self._tick.joint_reference(
+            lambda: model.inertia_inverse(q), J, Jdot, r, rdot, g.singular_sigma)
         Y_q, tau_0 = model.regressor_affine(q, qdot, qdot_r, qddot_r)
         s = qdot - qdot_r  # = J^-1 e for a square J
-        tau = Y_q.dot(self.theta_hat) + kin.J_ee.T.dot(f - g.k_d * e)
         self.e_w = None if rot is None else rot.omega_W - rot.omega_r
-        if rot is not None:
-            tau += kin.J_w.T.dot(rot.m_W - angular_damping(self.e_w, rot.a_W, k_w))
-        if tau_0 is not None:
-            tau += tau_0
-        if N is not None:  # null-space posture damping
-            tau -= g.k_null * N.T.dot(N.dot(s))
-        if not math.isfinite(sum(tau.tolist())):
+        tau, finite = self._tick.effort(
+            Y_q, self.theta_hat, tau_0, kin.J_ee, f - g.k_d * e, None if rot is None else kin.J_w,
+            None if rot is None else rot.m_W - angular_damping(self.e_w, rot.a_W, k_w), N, s,
+            g.k_null)
+        if not finite:
             raise ControlError('control law produced a non-finite effort')
         if dt > 0.0:
             if approach is not None:  # adapt on the motion along the surface only
                 n = self.n
                 e_t = e - n * float(n @ e)
                 s = J_pinv @ (e_t if rot is None else np.concatenate((e_t, self.e_w)))
-            self._integrate(Y_q, s * adaptation_weight(e, g.adapt_error_limit, g.adapt_dead_zone)
-                            if adapt and not self.damped else None, df_n, dt,
+            self._integrate(Y_q, s if adapt and not self.damped else None, e, df_n, dt,
                             in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
 
-    def _inverse(self, q: np.ndarray, J: np.ndarray,
-                 sigma0: float) -> tuple[np.ndarray, np.ndarray | None]:
-        """
-        Return J's inverse (damped near a singularity, ``self.damped``) and N (redundant arms).
-
-        A square J: linalg.damped_inverse. More joints than rows: the dynamically consistent
-        inverse of task_inverse.py, damped the same way.
-        """
-        if J.shape[1] > J.shape[0]:
-            J_pinv, N, self.damped = redundant_inverse(self.model.inertia_inverse(q), J, sigma0,
-                                                       self._eye_n)
-            return J_pinv, N
-        J_pinv, self.damped = damped_inverse(J, sigma0)
-        return J_pinv, None
-
-    def _integrate(self, Y_q: np.ndarray, s: np.ndarray | None, df_n: float, dt: float,
-                   force_loop: bool) -> None:
+    def _integrate(self, Y_q: np.ndarray, s: np.ndarray | None, e: np.ndarray, df_n: float,
+                   dt: float, force_loop: bool) -> None:
         """
         Integrate eq. (26) in joint space (``Y_x^T e = Y_q^T s`` for a square J) and h, eq. (20).
 
@@ -394,8 +380,9 @@ class HybridForceController:
         d = self._d
         g = d.gains
         if s is not None:
-            theta = adapt_theta(self.theta_hat, d.Gamma_inv, Y_q, g.k_a * s, dt, g.theta_min,
-                                g.theta_max)
+            theta = self._tick.adapt(self.theta_hat, d.Gamma_inv, Y_q, s, e, g.k_a,
+                                     g.adapt_error_limit, g.adapt_dead_zone, dt, g.theta_min,
+                                     g.theta_max)
             self.theta_hat = theta if self._project is None else self._project(theta)
         if force_loop:
             limit = self._k.h_limit

@@ -54,6 +54,7 @@ from ..common.runner import EXECUTORS, print_help, run_node, wants_help
 from ..common.scheduling import schedule_process
 from ...core.config.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
 from ...core.config.params import ParameterValidationError
+from ...core.law.tick_impl import kernels_cached
 from ...core.model.robot_model import RobotModel
 from ...core.runtime.controller_runtime import ControllerRuntime, InputError, Mode
 
@@ -204,8 +205,11 @@ class ControllerNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             self.model = self._load_model()
-            self.runtime = ControllerRuntime(
-                self.model, build_params(self.model, self._current_values()))
+            params = build_params(self.model, self._current_values())
+            if params.law.tick_impl == 'compiled' and not kernels_cached():
+                self.get_logger().info('compiling the tick (numba kernels, about 5-20 s, once: '
+                                       'cached for the next starts)')
+            self.runtime = ControllerRuntime(self.model, params)
         except ValueError as exc:
             self.model = self.runtime = None
             self.last_error = str(exc)
@@ -225,6 +229,8 @@ class ControllerNode(LifecycleNode):
             self.flight = FlightDumps(self.node_values['flight_recorder_dir'], self.model,
                                       self.get_logger().warning)
         self.state_label = 'inactive'
+        note = self.runtime.ctrl.tick_note  # a warning when numba is missing: the reference runs
+        (self.get_logger().warning if 'not importable' in note else self.get_logger().info)(note)
         self.get_logger().info(f"configured: {self.model.n} joints, base '{self.model.base_link}'"
                                f", inputs {self.loop.settings.topics['joint_states']}, "
                                f"commands {self.loop.settings.topics['commands']}")

@@ -1,0 +1,142 @@
+"""
+The law's per-tick arithmetic, in Python (the reference) or compiled (``tick_impl``).
+
+Three steps of control_law.step, the same interface in both: :meth:`joint_reference` (the
+task inverse and the joint reference, eqs. (35)-(37)), :meth:`effort` (eq. 5 in joint space)
+and :meth:`adapt` (eq. 26). ``PythonTick`` is numpy, as the law was written;
+``CompiledTick`` calls kernels.py, imported (compiled on the first start, then loaded from
+its cache) when it is built, at configure, never in a tick. No state: the law holds it.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+from pathlib import Path
+import time
+from typing import Callable
+
+import numpy as np
+
+from .adaptation import adapt_theta, adaptation_weight
+from .task_inverse import redundant_inverse
+from ..config.groups import TICK_IMPLS
+from ..model.linalg import damped_inverse
+
+__all__ = ['TICK_IMPLS', 'CompiledTick', 'PythonTick', 'kernels_cached', 'make_tick']
+
+_EMPTY1, _EMPTY2 = np.zeros(0), np.zeros((0, 0))
+_NO_ROWS = np.zeros((0, 1))
+
+
+class PythonTick:
+    """The numpy reference (task_inverse.py, linalg.py, adaptation.py)."""
+
+    name = 'python'
+
+    def __init__(self, n_joints: int) -> None:
+        self._eye_n = np.eye(n_joints)
+        self.note = 'tick_impl python: the numpy reference'  # what the node logs at configure
+
+    def joint_reference(self, M_inv: Callable[[], np.ndarray], J: np.ndarray, Jdot: np.ndarray,
+                        r: np.ndarray, rdot: np.ndarray, sigma0: float) -> tuple:
+        """
+        Return ``J^#, N, qdot_r, qddot_r, damped`` (N None for a square J).
+
+        ``M_inv()`` gives the inertia's inverse (called only for a redundant J).
+        """
+        if J.shape[1] > J.shape[0]:
+            J_pinv, N, damped = redundant_inverse(M_inv(), J, sigma0, self._eye_n)
+        else:
+            (J_pinv, damped), N = damped_inverse(J, sigma0), None
+        qdot_r = J_pinv.dot(r)
+        return J_pinv, N, qdot_r, J_pinv.dot(rdot - Jdot.dot(qdot_r)), damped
+
+    @staticmethod
+    def effort(Y_q: np.ndarray, theta_hat: np.ndarray, tau_0: np.ndarray | None,
+               J_ee: np.ndarray, f_minus_KDe: np.ndarray, J_w: np.ndarray | None,
+               m_minus_Kwew: np.ndarray | None, N: np.ndarray | None, s: np.ndarray,
+               k_null: float) -> tuple[np.ndarray, bool]:
+        """Return eq. (5)'s tau and whether it is finite (None: a term that is absent)."""
+        tau = Y_q.dot(theta_hat) + J_ee.T.dot(f_minus_KDe)
+        if J_w is not None:
+            tau += J_w.T.dot(m_minus_Kwew)
+        if tau_0 is not None:
+            tau += tau_0
+        if N is not None:  # null-space posture damping
+            tau -= k_null * N.T.dot(N.dot(s))
+        return tau, math.isfinite(sum(tau.tolist()))
+
+    @staticmethod
+    def adapt(theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_q: np.ndarray, s: np.ndarray,
+              e: np.ndarray, k_a: float, error_limit: float, dead_zone: float, dt: float,
+              lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Return eq. (26)'s next theta_hat, s weighted by adaptation_weight(e)."""
+        w = adaptation_weight(e, error_limit, dead_zone)
+        return adapt_theta(theta_hat, Gamma_inv, Y_q, k_a * (s * w), dt, lo, hi)
+
+
+class CompiledTick(PythonTick):
+    """The same three steps in kernels.py (numba); raises ImportError without numba."""
+
+    name = 'compiled'
+
+    def __init__(self, n_joints: int) -> None:
+        super().__init__(n_joints)
+        t0 = time.perf_counter()
+        self._k = importlib.import_module(f'{__package__}.kernels')
+        compiled = any(f.stats.cache_misses for f in (self._k.task_reference, self._k.effort,
+                                                      self._k.adapt))
+        self.note = (f"tick_impl compiled: numba kernels {'compiled' if compiled else 'loaded'}"
+                     f' in {time.perf_counter() - t0:.2f} s')
+
+    def joint_reference(self, M_inv: Callable[[], np.ndarray], J: np.ndarray, Jdot: np.ndarray,
+                        r: np.ndarray, rdot: np.ndarray, sigma0: float) -> tuple:
+        """See :meth:`PythonTick.joint_reference` (raises LinAlgError at a singular matrix)."""
+        if J.shape[1] <= J.shape[0] and J.shape[0] > 3:  # a square 6 x 6 J: the reference
+            return super().joint_reference(M_inv, J, Jdot, r, rdot, sigma0)
+        J_pinv, N, qdot_r, qddot_r, state = self._k.task_reference(
+            M_inv() if J.shape[1] > J.shape[0] else _EMPTY2, J, Jdot, r, rdot, sigma0)
+        if state < 0:
+            raise np.linalg.LinAlgError('singular matrix (a singular pose)')
+        return J_pinv, (N if N.shape[0] else None), qdot_r, qddot_r, state == 1
+
+    def effort(self, Y_q: np.ndarray, theta_hat: np.ndarray, tau_0: np.ndarray | None,
+               J_ee: np.ndarray, f_minus_KDe: np.ndarray, J_w: np.ndarray | None,
+               m_minus_Kwew: np.ndarray | None, N: np.ndarray | None, s: np.ndarray,
+               k_null: float) -> tuple[np.ndarray, bool]:
+        """See :meth:`PythonTick.effort`."""
+        return self._k.effort(Y_q, theta_hat, _EMPTY1 if tau_0 is None else tau_0, J_ee,
+                              f_minus_KDe, _NO_ROWS if J_w is None else J_w,
+                              _EMPTY1 if m_minus_Kwew is None else m_minus_Kwew,
+                              _EMPTY2 if N is None else N, s, k_null)
+
+    def adapt(self, theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_q: np.ndarray,
+              s: np.ndarray, e: np.ndarray, k_a: float, error_limit: float, dead_zone: float,
+              dt: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """See :meth:`PythonTick.adapt`."""
+        return self._k.adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt,
+                             lo, hi)
+
+
+def kernels_cached() -> bool:
+    """Say whether kernels.py's compiled code looks cached beside it (else: a first compile)."""
+    return any((Path(__file__).parent / '__pycache__').glob('kernels.*.nbi'))
+
+
+def make_tick(impl: str, n_joints: int) -> PythonTick:
+    """
+    Return the tick of ``impl`` (one of :data:`TICK_IMPLS`) for an arm of ``n_joints``.
+
+    ``compiled`` without numba importable runs the reference, and its ``note`` says so.
+    """
+    if impl not in TICK_IMPLS:
+        raise ValueError(f'tick_impl must be one of {list(TICK_IMPLS)}, got {impl!r}')
+    if impl == 'python':
+        return PythonTick(n_joints)
+    try:
+        return CompiledTick(n_joints)
+    except ImportError as exc:
+        tick = PythonTick(n_joints)
+        tick.note = (f'tick_impl compiled: numba is not importable ({exc}): the Python '
+                     'reference runs (pip install numba, or apt install python3-numba)')
+        return tick

@@ -1,0 +1,193 @@
+"""
+The compiled tick against the Python reference (issue 33, item 2; law/tick_impl.py, kernels.py).
+
+Step by step, each kernel against its reference on the same inputs: the task inverse of the
+Panda (its 3-row and 6-row tasks), the paper's 2 x 2 arm and a square 3 x 3 one, away from a
+singularity and damped near one; eq. (5)'s effort and eq. (26)'s update. Then whole closed loops
+with ``tick_impl`` python and compiled: the paper's scenario, the Panda, a moving normal (a
+sphere), a path (the Panda's square) and a fault episode (the surface falls away 3 cm), whose
+every logged effort, position and theta_hat must agree to a relative 1e-12 of the series' size.
+"""
+from __future__ import annotations
+
+import math
+
+from helpers.offline import move_surface, N_TOLD, SURFACES
+from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.law.tick_impl import CompiledTick, make_tick, PythonTick
+from hybrid_force_controller.core.model.robot_model import RobotModel
+from hybrid_force_controller.core.offline.arm7 import (panda_model, PANDA_Q0, panda_scenario,
+                                                       square_path_event)
+from hybrid_force_controller.core.offline.engine import Event
+from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
+import numpy as np
+import pytest
+
+REL = 1e-12  # the agreement asked (issue 33); rounding differences measured ~2e-15
+RNG = np.random.default_rng(33)
+
+
+@pytest.fixture(scope='module')
+def panda() -> RobotModel:
+    return panda_model()
+
+
+@pytest.fixture(scope='module')
+def ticks() -> tuple[PythonTick, CompiledTick]:
+    return PythonTick(7), CompiledTick(7)
+
+
+def close(a, b, rel: float = REL) -> bool:
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return a.shape == b.shape and bool(np.all(np.abs(a - b) <= rel * max(np.abs(a).max(), 1.0)))
+
+
+def assert_same_reference(ticks, M_inv, J, sigma0) -> bool:
+    """Both joint references agree on random r, rdot; return whether they damped."""
+    m = J.shape[0]
+    r, rdot, Jdot = RNG.normal(size=m), RNG.normal(size=m), RNG.normal(size=J.shape)
+    py, nb = (t.joint_reference(lambda: M_inv, J, Jdot, r, rdot, sigma0) for t in ticks)
+    assert py[4] == nb[4]
+    assert (py[1] is None) == (nb[1] is None)
+    for a, b in zip(py[:4], nb[:4]):
+        assert b is None or close(a, b)
+    return py[4]
+
+
+@pytest.mark.parametrize('rows', ['J6', 'J_ee'])
+def test_panda_inverse_matches(panda, ticks, rows):
+    """The Panda's redundant inverse, N and joint reference: at random poses and damped."""
+    damped = set()
+    for k in range(20):
+        q = np.array(PANDA_Q0) + RNG.normal(scale=0.4, size=7)
+        kin = panda.kinematics(q, np.zeros(7))
+        sigma0 = 0.05 if k % 2 else 2.0  # 2.0: above every pose's sigma, so damped
+        damped.add(assert_same_reference(ticks, panda.inertia_inverse(q), getattr(kin, rows),
+                                         sigma0))
+    assert damped == {False, True}
+
+
+@pytest.mark.parametrize('size', [2, 3])
+def test_square_inverse_matches(ticks, size):
+    """A square J (the paper's 2 x 2, a 3 x 3): inverted, and damped, alike."""
+    damped = set()
+    for k in range(20):
+        J = RNG.normal(size=(size, size))
+        damped.add(assert_same_reference(ticks, None, J, 0.3 if k % 2 else 0.0))
+    assert True in damped and False in damped
+
+
+def test_singular_square_j_is_refused_by_both(ticks):
+    """The paper's arm stretched out, undamped (singular_sigma 0): both raise LinAlgError."""
+    J = np.array([[1.0, 0.5], [2.0, 1.0]])
+    for t in ticks:
+        with pytest.raises(np.linalg.LinAlgError):
+            t.joint_reference(lambda: None, J, J, np.ones(2), np.ones(2), 0.0)
+
+
+def test_square_sigma_of_a_3x3_decides_alike(ticks):
+    """The 3 x 3 smallest singular value (eigvalsh against a closed form) damps at one sigma."""
+    J = np.diag([1.0, 0.5, 0.2])
+    for sigma0, damped in ((0.19, False), (0.21, True)):
+        for t in ticks:
+            assert t.joint_reference(lambda: None, J, J, np.ones(3), np.ones(3), sigma0)[4] \
+                == damped
+
+
+@pytest.mark.parametrize('rot, tau_0, null', [(False, False, False), (True, True, True),
+                                              (False, True, True)])
+def test_effort_and_adaptation_match(ticks, rot, tau_0, null):
+    """Eq. (5)'s effort with each optional term, eq. (26)'s update at every weight's branch."""
+    n, p = 7, 12
+    Y = RNG.normal(size=(n, p))
+    args = (Y, RNG.normal(size=p), RNG.normal(size=n) if tau_0 else None,
+            RNG.normal(size=(3, n)), RNG.normal(size=3), RNG.normal(size=(3, n)) if rot else None,
+            RNG.normal(size=3) if rot else None, RNG.normal(size=(n, n)) if null else None,
+            RNG.normal(size=n), 2.0)
+    (tau_py, ok_py), (tau_nb, ok_nb) = (t.effort(*args) for t in ticks)
+    assert ok_py and ok_nb and close(tau_py, tau_nb)
+    G = np.diag(RNG.uniform(0.5, 2.0, p)) + 0.01 * np.ones((p, p))
+    theta = RNG.normal(size=p)
+    for e_scale, dead in ((1e-3, 0.0), (1.0, 0.0), (1e-3, 1e-2), (0.05, 1e-3)):
+        e = RNG.normal(size=3) * e_scale
+        a = (theta, G, Y, RNG.normal(size=n), e, 1500.0, 0.1, dead, 1e-3, theta - 1e-4,
+             theta + 1e-4)
+        assert close(ticks[0].adapt(*a), ticks[1].adapt(*a))
+
+
+def test_non_finite_effort_is_flagged_by_both(ticks):
+    Y = np.ones((7, 3))
+    args = (Y, np.array([1.0, np.nan, 0.0]), None, np.zeros((3, 7)), np.zeros(3), None, None,
+            None, np.zeros(7), 0.0)
+    assert not ticks[0].effort(*args)[1] and not ticks[1].effort(*args)[1]
+
+
+def test_tick_impl_is_validated():
+    model = RobotModel.from_urdf()
+    assert build_params(model, {}).law.tick_impl == 'compiled'
+    assert build_params(model, {'tick_impl': 'python'}).law.tick_impl == 'python'
+    with pytest.raises(ParameterValidationError, match='tick_impl must be one of'):
+        build_params(model, {'tick_impl': 'cython'})
+    with pytest.raises(ValueError, match='tick_impl'):
+        make_tick('fast', 2)
+    assert isinstance(make_tick('compiled', 2), CompiledTick)
+    assert 'compiled: numba kernels' in make_tick('compiled', 2).note
+
+
+# ---------------------------------------------------------------- closed loops, both ticks
+def _both(run) -> tuple:
+    return run('python'), run('compiled')
+
+
+def assert_same_run(py, nb) -> None:
+    """Every logged series of two closed loops agrees to REL of its size."""
+    assert py.ticks == nb.ticks and py.mode == nb.mode
+    for name in ('tau', 'x_W', 'f_W', 'f_true_W', 'theta_hat', 'n_hat_W'):
+        a, b = getattr(py, name), getattr(nb, name)
+        ok = np.isfinite(a)
+        assert np.array_equal(ok, np.isfinite(b)), name
+        assert close(a[ok], b[ok]), (name, float(np.abs(a[ok] - b[ok]).max()))
+
+
+def test_paper_scenario_alike():
+    model = RobotModel.from_urdf()
+    assert_same_run(*_both(lambda impl: run_scenario(ScenarioConfig(
+        duration=6.0, theta_hat0_scale=0.5, overrides={'tick_impl': impl}), model)))
+
+
+def test_panda_alike(panda):
+    assert_same_run(*_both(lambda impl: run_scenario(
+        panda_scenario(panda, 4.0, overrides={'tick_impl': impl}), panda)))
+
+
+def test_panda_path_and_moment_alike(panda):
+    """The Panda's square on a tilted plane, the tool held square by the moments (6-D)."""
+    def run(impl):
+        cfg = panda_scenario(panda, 3.0, events=[square_path_event(1.0, 0.04, {})],
+                             surface_normal=(0.0, math.sin(0.3), -math.cos(0.3)),
+                             overrides={'ref_amplitude': [0.0, 0.0, 0.0], 'tick_impl': impl,
+                                        'n': [0.0, 0.0, -1.0], 'n_estimation': True,
+                                        'orientation_mode': 'moment'})
+        return run_scenario(cfg, panda)
+    assert_same_run(*_both(run))
+
+
+def test_moving_normal_alike(panda):
+    """helpers.offline.panda_run's sphere (a learnt normal, sensor noise), cut to 6 s."""
+    def run(impl):
+        cfg = panda_scenario(panda, 6.0, events=[square_path_event(1.0, 0.1, {})],
+                             noise_sigma=0.05, seed=1, **SURFACES['sphere'],
+                             overrides={'n': N_TOLD, 'n_estimation': True, 'tick_impl': impl,
+                                        'ref_amplitude': [0.0, 0.0, 0.0]})
+        return run_scenario(cfg, panda)
+    assert_same_run(*_both(run))
+
+
+def test_fault_episode_alike():
+    """The surface falls away 3 cm at 3 s: a contact-loss episode, an approach, contact again."""
+    model = RobotModel.from_urdf()
+    py, nb = _both(lambda impl: run_scenario(ScenarioConfig(
+        duration=5.0, delay_steps=2, overrides={'tick_impl': impl},
+        events=[Event(3.0, move_surface(0.03))]), model))
+    assert py.runtime.recovery.counts['contact_loss'] == 1  # the episode happened
+    assert_same_run(py, nb)

@@ -114,6 +114,19 @@ def orientation_tick_figures(model=None, duration: float = 4.0,
             'orientation_tick_7dof_us_median_moment': moment, 'orientation_tick_ratio': ratio}
 
 
+def tick_impl_figures(model=None, duration: float = 4.0, rounds: int = 3) -> dict[str, float]:
+    """Return the Panda's tick with tick_impl python and compiled, free and moment, paired."""
+    out = {}
+    for mode in ('free', 'moment'):
+        py, nb, ratio = _paired_medians(model, duration, rounds,
+                                        {'orientation_mode': mode, 'tick_impl': 'python'},
+                                        {'orientation_mode': mode, 'tick_impl': 'compiled'})
+        out.update({f'tick_7dof_{mode}_us_median_python': py,
+                    f'tick_7dof_{mode}_us_median_compiled': nb,
+                    f'tick_7dof_{mode}_compiled_over_python': ratio})
+    return out
+
+
 def _paired_medians(model, duration: float, rounds: int, a: dict,
                     b: dict) -> tuple[float, float, float]:
     """
@@ -172,6 +185,6 @@ def offline_figures(old_tree: str | None = None) -> dict[str, float]:
             'controller_step_7dof_us_median': round(float(np.median(panda_us)), 2),
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             **path_tick_figures(panda), **normal_tick_figures(panda),
-            **orientation_tick_figures(panda),
+            **orientation_tick_figures(panda), **tick_impl_figures(panda),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

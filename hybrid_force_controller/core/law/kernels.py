@@ -33,7 +33,7 @@ _A2, _A1 = float64[:, :], float64[:]
 _OPTS = {'cache': True, 'nogil': True}
 
 
-@nb.njit(_A2(_A2, _A2, boolean), **_OPTS)
+@nb.njit(nogil=True)
 def _mul(A, B, b_transposed):
     """Return ``A B`` (``A B^T`` with ``b_transposed``)."""
     n, k = A.shape
@@ -48,7 +48,7 @@ def _mul(A, B, b_transposed):
     return out
 
 
-@nb.njit(types.Tuple((_A2, boolean))(_A2), **_OPTS)
+@nb.njit(nogil=True)
 def _spd_inverse(A):
     """Return ``A^-1`` of a symmetric A by Cholesky, and False when A is not positive definite."""
     m = A.shape[0]
@@ -84,7 +84,7 @@ def _spd_inverse(A):
     return out, True
 
 
-@nb.njit(float64(_A2), **_OPTS)
+@nb.njit(nogil=True)
 def _sigma_min_sq_bound(J):
     """linalg.sigma_min_sq_bound: ``1 / tr((J J^T)^-1)`` (3 rows: closed form); 0 if singular."""
     G = _mul(J, J, True)
@@ -102,7 +102,7 @@ def _sigma_min_sq_bound(J):
     return 1.0 / tr if tr > 0.0 else 0.0
 
 
-@nb.njit(float64(_A2), **_OPTS)
+@nb.njit(nogil=True)
 def _sigma_min_sq(J):
     """linalg.sigma_min_sq of a 2 x 2 or 3 x 3 J (3 x 3: the eigenvalue's closed form)."""
     if J.shape[0] == 2:
@@ -124,7 +124,7 @@ def _sigma_min_sq(J):
     return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
 
 
-@nb.njit(types.Tuple((_A2, boolean))(_A2), **_OPTS)
+@nb.njit(nogil=True)
 def _small_inverse(A):
     """linalg.small_inverse of a 2 x 2 or 3 x 3 A (adjugate / det); False when det is 0."""
     out = np.empty(A.shape)
@@ -146,7 +146,7 @@ def _small_inverse(A):
     return out / det, True
 
 
-@nb.njit(types.Tuple((_A2, int64))(_A2, _A2, float64), **_OPTS)
+@nb.njit(nogil=True)
 def _inverse(M_inv, J, sigma0):
     """Return J^# and 1 when damped, 0 when not, -1 at a singular matrix (the module's list)."""
     m, n = J.shape

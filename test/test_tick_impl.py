@@ -14,6 +14,7 @@ import math
 
 from helpers.offline import move_surface, N_TOLD, SURFACES
 from hybrid_force_controller.core.config.params import build_params, ParameterValidationError
+from hybrid_force_controller.core.law.control_law import HybridForceController
 from hybrid_force_controller.core.law.tick_impl import CompiledTick, make_tick, PythonTick
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import (panda_model, PANDA_Q0, panda_scenario,
@@ -120,6 +121,32 @@ def test_non_finite_effort_is_flagged_by_both(ticks):
     args = (Y, np.array([1.0, np.nan, 0.0]), None, np.zeros((3, 7)), np.zeros(3), None, None,
             None, np.zeros(7), 0.0)
     assert not ticks[0].effort(*args)[1] and not ticks[1].effort(*args)[1]
+
+
+class _Spy:
+    """The kernels module, each call of its three kernels counted."""
+
+    def __init__(self, kernels) -> None:
+        self._k, self.calls = kernels, []
+
+    def __getattr__(self, name):
+        def call(*args):
+            self.calls.append(name)
+            return getattr(self._k, name)(*args)
+        return call
+
+
+def test_the_warm_up_calls_every_kernel_before_any_tick(panda, monkeypatch):
+    """Numba finishes a kernel on its first call (ms): the law makes it when it is built."""
+    tick = CompiledTick(7)
+    tick._k = spy = _Spy(tick._k)
+    tick.warm_up(panda)
+    assert sorted(set(spy.calls)) == ['adapt', 'effort', 'task_reference']
+    assert spy.calls.count('task_reference') == 2  # the 3-row and the 6-D task
+    warmed = []
+    monkeypatch.setattr(CompiledTick, 'warm_up', lambda self, model: warmed.append(model))
+    HybridForceController(panda, build_params(panda, {}).law)
+    assert warmed == [panda]
 
 
 def test_tick_impl_is_validated():

@@ -112,6 +112,7 @@ class HybridForceController:
         self.model = model
         self._project = model.parameter_set.project
         self._tick = make_tick(gains.tick_impl, model.n)  # compiled: loaded here, at configure
+        self._tick.warm_up(model)  # and each kernel's first call made: never in a tick
         self._d: _Derived | None = None
         self._k = _Compliance()
         self._moving: MovingNormal | None = None  # a moving normal (set_normal), else d.n

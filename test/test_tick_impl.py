@@ -24,7 +24,10 @@ from hybrid_force_controller.core.offline.scenario import run_scenario, Scenario
 import numpy as np
 import pytest
 
-REL = 1e-12  # the agreement asked (issue 33); rounding differences measured ~2e-15
+# the agreement asked (issue 33). Measured: 2e-15 step by step; in the closed loops the rounding
+# grows with the run, to 3e-13 of the force on the sphere at 4 s (8e-13 at 6 s), 5e-13 in the
+# moment mode's path: the runs are cut to keep 2-3 times of margin
+REL = 1e-12
 RNG = np.random.default_rng(33)
 
 
@@ -200,9 +203,9 @@ def test_panda_path_and_moment_alike(panda):
 
 
 def test_moving_normal_alike(panda):
-    """helpers.offline.panda_run's sphere (a learnt normal, sensor noise), cut to 6 s."""
+    """helpers.offline.panda_run's sphere (a learnt normal, sensor noise), cut to 4 s."""
     def run(impl):
-        cfg = panda_scenario(panda, 6.0, events=[square_path_event(1.0, 0.1, {})],
+        cfg = panda_scenario(panda, 4.0, events=[square_path_event(1.0, 0.1, {})],
                              noise_sigma=0.05, seed=1, **SURFACES['sphere'],
                              overrides={'n': N_TOLD, 'n_estimation': True, 'tick_impl': impl,
                                         'ref_amplitude': [0.0, 0.0, 0.0]})

@@ -152,6 +152,33 @@ def test_the_warm_up_calls_every_kernel_before_any_tick(panda, monkeypatch):
     assert warmed == [panda]
 
 
+def test_no_python_runs_inside_a_kernel_call(panda, ticks, monkeypatch):
+    """
+    The kernels fill their callers' arrays: none is boxed, so no Python frame runs in a call.
+
+    Boxing a returned array unpickles its dtype in Python (numba.core.serialize); a Ctrl-C that
+    landed there became a SystemError out of the kernel instead of a KeyboardInterrupt.
+    """
+    import numba.core.serialize as serialize
+    calls = []
+    real = serialize._numba_unpickle
+    monkeypatch.setattr(serialize, '_numba_unpickle', lambda *a: calls.append(1) or real(*a))
+    q = np.array(PANDA_Q0)
+    kin = panda.kinematics(q, np.zeros(7))
+    theta = np.array(panda.theta_nominal)
+    tick = ticks[1]
+    for J, Jdot, J_w in ((kin.J_ee, kin.Jdot_ee, None), (kin.J6, kin.Jdot6, kin.J_w)):
+        m = J.shape[0]
+        _, N, qdot_r, qddot_r, _ = tick.joint_reference(lambda: panda.inertia_inverse(q), J, Jdot,
+                                                        np.ones(m), np.ones(m), 0.1)
+        Y_q, tau_0 = panda.regressor_affine(q, q, qdot_r, qddot_r)
+        assert tick.effort(Y_q, theta, tau_0, kin.J_ee, np.ones(3), J_w,
+                           None if J_w is None else np.ones(3), N, q, 1.0)[1]
+        tick.adapt(theta, np.eye(theta.size), Y_q, q, np.ones(3), 1.0, 0.1, 0.0, 1e-3,
+                   theta - 1.0, theta + 1.0)
+    assert calls == []
+
+
 def test_tick_impl_is_validated():
     model = RobotModel.from_urdf()
     assert build_params(model, {}).law.tick_impl == 'compiled'

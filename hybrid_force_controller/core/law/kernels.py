@@ -1,6 +1,10 @@
 r"""
 Compiled kernels of the law's tick (``tick_impl: compiled``, numba): three calls per step.
 
+Each writes into arrays its caller allocated and returns a number: no array is boxed on the way
+out, so no Python runs inside a call (boxing an array unpickles its dtype: a Python frame in
+which a Ctrl-C became a SystemError).
+
 Each kernel computes what its Python reference (tick_impl.py, ``PythonTick``) computes, with
 the same formulas; only the order of the sums differs (numpy's BLAS against plain loops), so
 the two agree to rounding (test_tick_impl):
@@ -24,7 +28,7 @@ from __future__ import annotations
 import math
 
 import numba as nb
-from numba import boolean, float64, int64, types
+from numba import boolean, float64, int64, void
 import numpy as np
 
 __all__ = ['adapt', 'effort', 'task_reference']
@@ -174,49 +178,50 @@ def _inverse(M_inv, J, sigma0):
     return _mul(np.ascontiguousarray(J.T), JJt_inv, False), 1 if ok else -1
 
 
-@nb.njit(types.Tuple((_A2, _A2, _A1, _A1, int64))(_A2, _A2, _A2, _A1, _A1, float64), **_OPTS)
-def task_reference(M_inv, J, Jdot, r, rdot, sigma0):
+@nb.njit(int64(_A2, _A2, _A2, _A1, _A1, float64, _A2, _A2, _A1, _A1), **_OPTS)
+def task_reference(M_inv, J, Jdot, r, rdot, sigma0, J_inv_out, N_out, qdot_r, qddot_r):
     """
-    Return ``J^#, N, qdot_r, qddot_r`` and the inverse's state (1 damped, 0 not, -1 singular).
+    Fill ``J^#, N, qdot_r, qddot_r``; return the inverse's state (1 damped, 0 not, -1 singular).
 
-    ``M_inv`` is read only for a redundant J (pass any array for a square one); N is empty for
-    a square J.
+    ``M_inv`` is read only for a redundant J (pass any array for a square one); ``N_out`` is
+    left as it is for a square J (pass an empty one).
     """
     m, n = J.shape
     J_inv, state = _inverse(M_inv, J, sigma0)
-    qdot_r, qddot_r = np.zeros(n), np.zeros(n)
+    J_inv_out[:, :] = J_inv
     for i in range(n):
+        acc = 0.0
         for k in range(m):
-            qdot_r[i] += J_inv[i, k] * r[k]
+            acc += J_inv[i, k] * r[k]
+        qdot_r[i] = acc
     a = rdot.copy()
     for k in range(m):
         for j in range(n):
             a[k] -= Jdot[k, j] * qdot_r[j]
     for i in range(n):
+        acc = 0.0
         for k in range(m):
-            qddot_r[i] += J_inv[i, k] * a[k]
-    N = np.zeros((n, n) if n > m else (0, 0))
+            acc += J_inv[i, k] * a[k]
+        qddot_r[i] = acc
     if n > m:
         for i in range(n):
             for j in range(n):
                 acc = 0.0
                 for k in range(m):
                     acc += J_inv[i, k] * J[k, j]
-                N[i, j] = (1.0 if i == j else 0.0) - acc
-    return J_inv, N, qdot_r, qddot_r, state
+                N_out[i, j] = (1.0 if i == j else 0.0) - acc
+    return state
 
 
-@nb.njit(types.Tuple((_A1, boolean))(_A2, _A1, _A1, _A2, _A1, _A2, _A1, _A2, _A1, float64),
-         **_OPTS)
-def effort(Y_q, theta_hat, tau_0, J_ee, f_minus_KDe, J_w, m_minus_Kwew, N, s, k_null):
+@nb.njit(boolean(_A2, _A1, _A1, _A2, _A1, _A2, _A1, _A2, _A1, float64, _A1), **_OPTS)
+def effort(Y_q, theta_hat, tau_0, J_ee, f_minus_KDe, J_w, m_minus_Kwew, N, s, k_null, tau):
     """
-    Return eq. (5)'s tau and whether every entry is finite.
+    Fill ``tau`` with eq. (5)'s effort; return whether every entry is finite.
 
     ``tau_0`` empty: no known part; ``J_w`` with no rows: the translational task; ``N`` empty:
     a square arm. ``f_minus_KDe = f - K_D e`` and ``m_minus_Kwew = m - K_w e_w`` (3-vectors).
     """
     n = Y_q.shape[0]
-    tau = np.zeros(n)
     for i in range(n):
         acc = 0.0
         for k in range(Y_q.shape[1]):
@@ -241,12 +246,13 @@ def effort(Y_q, theta_hat, tau_0, J_ee, f_minus_KDe, J_w, m_minus_Kwew, N, s, k_
     finite = True
     for i in range(n):
         finite = finite and math.isfinite(tau[i])
-    return tau, finite
+    return finite
 
 
-@nb.njit(_A1(_A1, _A2, _A2, _A1, _A1, float64, float64, float64, float64, _A1, _A1), **_OPTS)
-def adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt, lo, hi):
-    """Return eq. (26)'s next theta_hat (adaptation.adapt_theta with adaptation_weight's w)."""
+@nb.njit(void(_A1, _A2, _A2, _A1, _A1, float64, float64, float64, float64, _A1, _A1, _A1),
+         **_OPTS)
+def adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt, lo, hi, out):
+    """Fill ``out`` with eq. (26)'s next theta_hat (adaptation.adapt_theta, its weight w)."""
     e_norm = 0.0
     for x in e:
         e_norm += x * x
@@ -262,10 +268,8 @@ def adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt, lo, 
         v = k_a * (s[j] * w)
         for k in range(p):
             g[k] += v * Y_q[j, k]
-    out = np.empty(p)
     for i in range(p):
         acc = 0.0
         for k in range(p):
             acc += Gamma_inv[i, k] * g[k]
         out[i] = min(max(theta_hat[i] - dt * acc, lo[i]), hi[i])
-    return out

@@ -5,7 +5,8 @@ Three steps of control_law.step, the same interface in both: :meth:`joint_refere
 task inverse and the joint reference, eqs. (35)-(37)), :meth:`effort` (eq. 5 in joint space)
 and :meth:`adapt` (eq. 26). ``PythonTick`` is numpy, as the law was written;
 ``CompiledTick`` calls kernels.py, imported (compiled on the first start, then loaded from
-its cache) when it is built, at configure, never in a tick. No state: the law holds it.
+its cache) when it is built, at configure, never in a tick; it allocates each output and the
+kernel fills it. No state: the law holds it.
 """
 from __future__ import annotations
 
@@ -119,30 +120,37 @@ class CompiledTick(PythonTick):
     def joint_reference(self, M_inv: Callable[[], np.ndarray], J: np.ndarray, Jdot: np.ndarray,
                         r: np.ndarray, rdot: np.ndarray, sigma0: float) -> tuple:
         """See :meth:`PythonTick.joint_reference` (raises LinAlgError at a singular matrix)."""
-        if J.shape[1] <= J.shape[0] and J.shape[0] > 3:  # a square 6 x 6 J: the reference
+        m, n = J.shape
+        if n <= m and m > 3:  # a square 6 x 6 J: the reference
             return super().joint_reference(M_inv, J, Jdot, r, rdot, sigma0)
-        J_pinv, N, qdot_r, qddot_r, state = self._k.task_reference(
-            M_inv() if J.shape[1] > J.shape[0] else _EMPTY2, J, Jdot, r, rdot, sigma0)
+        J_pinv, qdot_r, qddot_r = np.empty((n, m)), np.empty(n), np.empty(n)
+        N = np.empty((n, n)) if n > m else None
+        state = self._k.task_reference(M_inv() if n > m else _EMPTY2, J, Jdot, r, rdot, sigma0,
+                                       J_pinv, _EMPTY2 if N is None else N, qdot_r, qddot_r)
         if state < 0:
             raise np.linalg.LinAlgError('singular matrix (a singular pose)')
-        return J_pinv, (N if N.shape[0] else None), qdot_r, qddot_r, state == 1
+        return J_pinv, N, qdot_r, qddot_r, state == 1
 
     def effort(self, Y_q: np.ndarray, theta_hat: np.ndarray, tau_0: np.ndarray | None,
                J_ee: np.ndarray, f_minus_KDe: np.ndarray, J_w: np.ndarray | None,
                m_minus_Kwew: np.ndarray | None, N: np.ndarray | None, s: np.ndarray,
                k_null: float) -> tuple[np.ndarray, bool]:
         """See :meth:`PythonTick.effort`."""
-        return self._k.effort(Y_q, theta_hat, _EMPTY1 if tau_0 is None else tau_0, J_ee,
-                              f_minus_KDe, _NO_ROWS if J_w is None else J_w,
-                              _EMPTY1 if m_minus_Kwew is None else m_minus_Kwew,
-                              _EMPTY2 if N is None else N, s, k_null)
+        tau = np.empty(Y_q.shape[0])
+        finite = self._k.effort(Y_q, theta_hat, _EMPTY1 if tau_0 is None else tau_0, J_ee,
+                                f_minus_KDe, _NO_ROWS if J_w is None else J_w,
+                                _EMPTY1 if m_minus_Kwew is None else m_minus_Kwew,
+                                _EMPTY2 if N is None else N, s, k_null, tau)
+        return tau, finite
 
     def adapt(self, theta_hat: np.ndarray, Gamma_inv: np.ndarray, Y_q: np.ndarray,
               s: np.ndarray, e: np.ndarray, k_a: float, error_limit: float, dead_zone: float,
               dt: float, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """See :meth:`PythonTick.adapt`."""
-        return self._k.adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt,
-                             lo, hi)
+        out = np.empty(theta_hat.shape[0])
+        self._k.adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt, lo, hi,
+                      out)
+        return out
 
 
 def kernels_cached() -> bool:

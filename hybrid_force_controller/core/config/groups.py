@@ -178,6 +178,9 @@ class NormalConfig:
     friction_time_constant : time constant of the friction coefficient mu_hat, s of sliding.
     velocity_fusion : weight in [0, 1] of the constraint n_hat perpendicular to the velocity
         (0: off; 1: the measured force's component along the velocity is removed entirely).
+    seat_offset : with ``orientation_mode`` moment, the pad counts as seated while its centre
+        of pressure lies within this distance of its centre (m; normal_estimate.py (N7));
+        its axis is then the measured normal. 0: off.
 
     """
 
@@ -189,20 +192,23 @@ class NormalConfig:
     friction_removal: bool = True
     friction_time_constant: float = 0.5
     velocity_fusion: float = 0.5
+    seat_offset: float = 0.01
 
     def __post_init__(self) -> None:
         for name in ('enabled', 'friction_removal'):
             if not isinstance(getattr(self, name), bool):
                 raise NormalConfigError(f'{name} must be a bool, got {getattr(self, name)!r}')
         for name in ('rate_limit', 'time_constant', 'force_floor', 'speed_floor',
-                     'friction_time_constant', 'velocity_fusion'):
+                     'friction_time_constant', 'velocity_fusion', 'seat_offset'):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise NormalConfigError(f'{name} must be a number, got {value!r}')
             if name == 'velocity_fusion' and not 0.0 <= value <= 1.0:
                 raise NormalConfigError(f'velocity_fusion must be in [0, 1], got {value}')
-            if not (math.isfinite(value) and (value > 0.0 or name == 'velocity_fusion')):
-                raise NormalConfigError(f'{name} must be finite and > 0, got {value}')
+            zero_ok = name in ('velocity_fusion', 'seat_offset')
+            if not (math.isfinite(value) and (value > 0.0 or (zero_ok and value == 0.0))):
+                raise NormalConfigError(f"{name} must be finite and {'>=' if zero_ok else '>'} "
+                                        f'0, got {value}')
             object.__setattr__(self, name, float(value))
 
 

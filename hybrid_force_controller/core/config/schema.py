@@ -266,6 +266,10 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
     _nrm('n_velocity_fusion', 'double', 0.5,
          'Weight of the constraint n perpendicular to the velocity, 0 (off) to 1 (the '
          "force's whole component along the velocity removed).", 0.0, 1.0),
+    _nrm('n_seat_offset', 'double', 0.01,
+         'orientation_mode moment: the pad counts as seated while its centre of pressure '
+         '(tilt moment error over force) is within this distance of its centre for 0.1 s, m; '
+         "a seated pad's axis is then the measured normal, at rest too (0: off).", 0.0, 1.0),
     # the tool's orientation (law/orientation.py, docs/design.md "The tool square to the part")
     _ori('orientation_mode', 'string', 'free',
          'free: only the tool position is controlled (the paper); normal: tool_axis held '

@@ -24,6 +24,18 @@ this module's; docs/design.md, "A moving normal", gives the stability bound of i
 (a rotation, renormalised). With w = 1 (N4) removes the whole component along v (Yoshikawa's
 estimate; it needs v tangent to the surface); w = 0 relies on mu_hat alone (Nasiri & Wang).
 
+**A seated pad** (``orientation_mode`` moment, law/orientation.py :meth:`seated_axis`). A flat
+pad whose tilt moments are at their target lies flat on the part: its axis ``a_W`` (the tool
+axis, into the surface) is the normal at the contact, at rest as well as sliding, and without
+the friction's ambiguity. While the caller says the pad is seated its axis is the measurement::
+
+    n_m = a_W      (the pad seated: its centre of pressure within seat_offset of its centre)  (N7)
+
+and (N6) turns n_hat towards it at once (``a_n = 1``: the axis is not noisy; the rate limit
+holds). mu_hat is learnt on (N2) while the seated pad slides, so that the force's measurement is
+ready when the pad leaves its seat (the pad's axis lags a normal that turns under it, the
+moment's admittance, and a tilt moment beyond seat_offset then unseats it).
+
 **Gates.** A sample updates nothing unless the tool is in contact (the caller's test), the force
 ``|f|`` is at least ``force_floor`` and it is finite. It updates mu_hat and n_hat only while
 *sliding*: the speed across n_hat, ``|v - (v^T n_hat) n_hat|``, at least ``speed_floor``.
@@ -113,13 +125,13 @@ class NormalEstimator:
         return self._dt_cache
 
     def update(self, f_W: Sequence[float], v_W: Sequence[float], dt: float,
-               in_contact: bool) -> bool:
+               in_contact: bool, axis_W: Sequence[float] | None = None) -> bool:
         """
         Feed one sample; return True when n_hat moved towards a new measurement.
 
         ``state`` says what the sample did: ``no_contact``, ``low_force``, ``at_rest``,
-        ``implausible`` (opposite the estimate, or degenerate), ``rejected`` (non-finite) or
-        ``sliding`` (used).
+        ``implausible`` (opposite the estimate, or degenerate), ``rejected`` (non-finite),
+        ``sliding`` (used) or ``seated`` (the pad's axis used, (N7)).
 
         Parameters
         ----------
@@ -131,6 +143,8 @@ class NormalEstimator:
             Time since the previous sample, s (finite, > 0; else NormalEstimateError).
         in_contact : bool
             The caller's contact test.
+        axis_W : sequence of 3 floats, optional
+            The seated pad's unit axis, into the surface, base frame (N7); None: not seated.
 
         """
         _, a_n, a_mu, step_max = self._factors(dt)
@@ -146,17 +160,33 @@ class NormalEstimator:
         n0, n1, n2 = self._n
         v_n = v0 * n0 + v1 * n1 + v2 * n2
         t0, t1, t2 = v0 - v_n * n0, v1 - v_n * n1, v2 - v_n * n2
-        if t0 * t0 + t1 * t1 + t2 * t2 < self._floors[1]:
+        sliding = t0 * t0 + t1 * t1 + t2 * t2 >= self._floors[1]
+        if sliding:
+            speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            u0, u1, u2 = v0 / speed, v1 / speed, v2 / speed
+            c0, c1, c2 = self._measured(f0, f1, f2, u0, u1, u2, a_mu)  # (N2)-(N4)
+        if axis_W is not None:  # (N7); mu_hat learnt on while sliding, for when it unseats
+            return self._seated(axis_W, step_max)
+        if not sliding:
             return self._hold('at_rest')
-        speed = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        u0, u1, u2 = v0 / speed, v1 / speed, v2 / speed
-        c0, c1, c2 = self._measured(f0, f1, f2, u0, u1, u2, a_mu)  # (N2)-(N4)
         norm = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         if not norm > _TINY or c0 * n0 + c1 * n1 + c2 * n2 <= 0.0:
             return self._hold('implausible')
         self._turn(c0 / norm, c1 / norm, c2 / norm, a_n, step_max)  # (N5), (N6)
         self.samples_used += 1
         self.state = 'sliding'
+        return True
+
+    def _seated(self, axis_W: Sequence[float], step_max: float) -> bool:
+        """(N7), (N6): turn n_hat towards the seated pad's axis; refuse one opposite it."""
+        a0, a1, a2 = axis_W
+        norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        n0, n1, n2 = self._n
+        if not (math.isfinite(norm) and norm > _TINY) or a0 * n0 + a1 * n1 + a2 * n2 <= 0.0:
+            return self._hold('implausible')
+        self._turn(a0 / norm, a1 / norm, a2 / norm, 1.0, step_max)
+        self.samples_used += 1
+        self.state = 'seated'
         return True
 
     def _hold(self, state: str) -> bool:

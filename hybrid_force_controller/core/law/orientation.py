@@ -54,6 +54,7 @@ __all__ = ['OrientationRef', 'ToolOrientation']
 
 _ZERO3 = np.zeros(3)
 MIN_TRAVEL_SPEED = 1e-3  # m/s: slower than this along the surface, t keeps its last direction
+SEAT_S = 0.1  # s: the pad counts as seated after this long with its centre of pressure near
 
 
 class OrientationRef(NamedTuple):
@@ -93,6 +94,7 @@ class ToolOrientation:
         self.t_W: np.ndarray | None = None  # the last direction of travel
         self._tilt_dir: np.ndarray | None = None  # the tilt's direction (rate-limited)
         self._omega_d = np.zeros(3)
+        self._seated_s = 0.0  # how long the pad has been seated (seated_axis), s
 
     def set_moment_target(self, m_d_W: np.ndarray) -> None:
         """Use the tilt-moment target ``m_d_W`` (N m, W; its part along n is unused)."""
@@ -189,6 +191,31 @@ class ToolOrientation:
         self.R_0 = R_spin.dot(R_d)  # the new spin is held from here on
         self._a_0 = self.a_d.copy()
         return self.R_0.copy()
+
+    def seated_axis(self, R_W_ee: np.ndarray, n_W: np.ndarray, f_W: np.ndarray,
+                    m_W: np.ndarray | None, dt: float, touching: bool,
+                    offset: float) -> np.ndarray | None:
+        """
+        Return the tool axis in W while the pad is seated (the normal's (N7)), else None.
+
+        ``moment`` mode only. Seated: touching, with a measured moment ``m_W`` (None: no
+        torque yet), and the tilt part of its error ``P_t (m_W - m_d)`` (``P_t = I - n n^T``,
+        ``n_W`` the normal in use) below ``offset |f_W|`` (the centre of pressure within
+        ``offset`` m of the pad's centre: a pad on its rim has it at its radius) for
+        :data:`SEAT_S` of ``dt`` steps (s).
+        """
+        if self.cfg.mode != 'moment' or not touching or m_W is None or not offset > 0.0:
+            self._seated_s = 0.0
+            return None
+        n, f = n_W.tolist(), f_W.tolist()
+        dm = [a - b for a, b in zip(m_W.tolist(), self.m_d_W.tolist())]
+        k = _dot(n, dm)
+        tilt = [d - c * k for c, d in zip(n, dm)]
+        if _dot(tilt, tilt) > offset * offset * _dot(f, f):
+            self._seated_s = 0.0
+            return None
+        self._seated_s += dt
+        return self.axis_W(R_W_ee) if self._seated_s >= SEAT_S else None
 
     def tilt_error(self, R_W_ee: np.ndarray) -> float:
         """Return the angle between the tool axis and its target axis a_d, rad."""

@@ -163,7 +163,8 @@ class ControllerRuntime(RuntimeInterface):
         if touching:
             self._motion.note_contact(self._in.kin().x)
         if self._normal.enabled and dt_state > 0.0:  # the normal estimate (surface.py)
-            self._normal.update(f_W, self._in.kin(), dt_state, touching, self._motion)
+            self._normal.update(f_W, self._in.kin(), dt_state, touching, self._motion,
+                                self._seated_axis(f_W, touching, dt_state))
         if touching and self._in.tare is not None:
             self._in.tare.abort('the tool touched the surface during the tare')
         self._transitions(touching, stalled, f_W, t)
@@ -188,6 +189,14 @@ class ControllerRuntime(RuntimeInterface):
         self._motion.r_n, self._motion.rdot_n = out.r_n, out.rdot_n
         self._observe(t, f_n, out.e, touching)
         return self._running_output(out.tau, out, ref, f_W)
+
+    def _seated_axis(self, f_W: np.ndarray, touching: bool, dt: float) -> np.ndarray | None:
+        """Return the seated pad's axis, the normal's measurement (N7); None: not seated."""
+        offset = self._params.normal.seat_offset
+        if self._params.orientation.mode != 'moment' or not offset:
+            return None
+        return self.orientation.seated_axis(self._in.kin().R_W_ee, self._normal.n_W, f_W,
+                                            self._in.measured_moment(), dt, touching, offset)
 
     def _rotation(self, ref: Reference, dt: float, touching: bool) -> OrientationRef | None:
         """

@@ -207,6 +207,10 @@ class LatestInputs:
             T_S = T_S - tool_weight_S(mass, com_S, R_W_S, self._g_W)[1]
         return -T_S if R is None else -R.dot(T_S)
 
+    def measured_moment(self) -> np.ndarray | None:
+        """Return m_W filtered as f_W, or None before any torque (after filtered_force)."""
+        return self._moment.value if self._moment.ready else None
+
     def filtered_moment(self) -> np.ndarray:
         """Return m_W filtered as f_W (zeros before any torque; after filtered_force)."""
         return self._moment.value if self._moment.ready else np.zeros(3)

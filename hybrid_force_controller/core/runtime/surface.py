@@ -25,7 +25,8 @@ delta: 0.1 mm/s at 0.08 deg and 7 cm/s, against the micrometres by which a force
 on a plane, a cylinder and a sphere) drifts alike: on the Panda's tilted plane the fit fell
 from 3000 to 183 N/m within 0.5 s of sliding, on the cylinder and sphere to 50 N/m. So the
 fit learns only while the tool is still along the surface (``|v - (v^T n_hat) n_hat|`` below
-a fifth of ``n_speed_floor`` for 50 ms; n_hat is then held), and it is re-anchored each time
+a fifth of ``n_speed_floor`` for 50 ms) and n_hat stays (the force holds it at rest; a seated
+pad's axis, normal_estimate.py (N7), may turn it), and it is re-anchored each time
 it resumes: the regression restarts from the current k_hat (kept, as its prior), with the
 origin of x_n at the next sample (stiffness_loop.py ``learn``)::
 
@@ -57,6 +58,7 @@ MAX_TILT_RAD = math.pi / 3.0  # the largest angle between the normal in use and 
 PROPAGATE_RAD = 1e-4  # n_W (contact, f_d n, approach) follows n_hat once it moved this far
 STILL_FRACTION = 0.2  # the tool is still below this fraction of n_speed_floor across n_hat
 STILL_S = 0.05  # ... for this long: the stiffness fit may learn (M3)
+STILL_TURN_RAD = 1e-6  # ... while n_hat turns by at most this per state (a seated pad's (N7))
 _COS_MAX = math.cos(MAX_TILT_RAD)
 _ZERO = (0.0, 0.0, 0.0)
 
@@ -123,18 +125,19 @@ class SurfaceNormal:
         motion.set_normal(self.n_W)
 
     def update(self, f_W: np.ndarray, kin: TaskKinematics, dt: float, touching: bool,
-               motion: Motion) -> None:
+               motion: Motion, axis_W: np.ndarray | None = None) -> None:
         """
         Feed one new state (``dt`` > 0, s): n_hat and its rate to the law; :attr:`still` (M3).
 
         ``f_W`` the filtered force the tool exerts (base frame), ``kin`` the state's kinematics
-        (the task velocity), ``touching`` the contact state.
+        (the task velocity), ``touching`` the contact state, ``axis_W`` a seated pad's axis
+        (normal_estimate.py (N7); None: none). The tool is still only while n_hat stays.
         """
         est = self.estimator
         f, v = f_W.tolist(), kin.xdot.tolist()
         if not self._full:
             f, v = self._in_plane(f), self._embed(v)
-        est.update(f, v, dt, touching)
+        est.update(f, v, dt, touching, None if axis_W is None else axis_W.tolist())
         n = est.n_hat
         if n is not self._n_est:  # it turned (a new tuple)
             self._n_est = n
@@ -145,7 +148,8 @@ class SurfaceNormal:
         n0, n1, n2 = self.n
         v0, v1, v2 = v
         v_n = v0 * n0 + v1 * n1 + v2 * n2
-        if v0 * v0 + v1 * v1 + v2 * v2 - v_n * v_n < self._still_speed2:
+        if (v0 * v0 + v1 * v1 + v2 * v2 - v_n * v_n < self._still_speed2
+                and est.last_angle <= STILL_TURN_RAD):
             self._still_s += dt
             self.still = self._still_s >= STILL_S
         else:

@@ -45,7 +45,8 @@ import helpers.ros  # noqa: E402,F401,I100  (fixes the run's base domain before 
 # offline module's test that starts a node says so with ``@pytest.mark.dds`` (test_any_arm):
 # it alone joins the serial group.
 OFFLINE_MODULES = {
-    'test_analysis', 'test_any_arm', 'test_bounds_helper', 'test_cdr', 'test_cell_trial_figures',
+    'test_analysis', 'test_any_arm', 'test_approach', 'test_bounds_helper', 'test_cdr',
+    'test_cell_trial_figures',
     'test_closed_loop_offline', 'test_control_law', 'test_engine',
     'test_filters_env', 'test_flake8', 'test_flight_recorder', 'test_force_target_and_tare',
     'test_input_plausibility',
@@ -54,7 +55,7 @@ OFFLINE_MODULES = {
     'test_mujoco_demo_args', 'test_mujoco_plant', 'test_normal_closed_loop',
     'test_normal_estimate', 'test_params', 'test_path', 'test_path_runtime',
     'test_pep257', 'test_pinned_figures', 'test_recovery', 'test_report', 'test_report_normal',
-    'test_report_path', 'test_singularity',
+    'test_report_path', 'test_safe_hold', 'test_seated_pad', 'test_singularity', 'test_tick_impl',
     'test_runtime', 'test_runtime_changes', 'test_stalls', 'test_stiffness',
     'test_stiffness_closed_loop', 'test_stiffness_guards', 'test_stiffness_loop',
     'test_stiffness_tools', 'test_surface_shapes', 'test_tool_gravity',

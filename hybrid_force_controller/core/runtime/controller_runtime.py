@@ -192,11 +192,9 @@ class ControllerRuntime(RuntimeInterface):
 
     def _seated_axis(self, f_W: np.ndarray, touching: bool, dt: float) -> np.ndarray | None:
         """Return the seated pad's axis, the normal's measurement (N7); None: not seated."""
-        offset = self._params.normal.seat_offset
-        if self._params.orientation.mode != 'moment' or not offset:
-            return None
         return self.orientation.seated_axis(self._in.kin().R_W_ee, self._normal.n_W, f_W,
-                                            self._in.measured_moment(), dt, touching, offset)
+                                            self._in.measured_moment(), dt, touching,
+                                            self._params.normal.seat_offset)
 
     def _rotation(self, ref: Reference, dt: float, touching: bool) -> OrientationRef | None:
         """

@@ -213,7 +213,8 @@ class LatestInputs:
 
     def filtered_moment(self) -> np.ndarray:
         """Return m_W filtered as f_W (zeros before any torque; after filtered_force)."""
-        return self._moment.value if self._moment.ready else np.zeros(3)
+        m_W = self.measured_moment()
+        return np.zeros(3) if m_W is None else m_W
 
     def stale(self, t: float) -> str:
         """Say why the inputs are too old to act on at ``t`` ('' when they are fresh)."""

@@ -202,15 +202,26 @@ class Spun:
         self.thread.start()
 
     def _spin(self) -> None:
-        from rclpy._rclpy_pybind11 import RCLError
+        """
+        Spin until close(); an entity destroyed by the test's thread mid-spin is skipped.
+
+        A test that destroys a subscription while this thread builds its wait set meets rclpy's
+        InvalidHandle ("destruction was requested") here: the thread used to end, and every
+        watcher of this context went deaf (test_gateway, a clean-clone run: three waits of 120 s
+        for /diagnostics). The next spin builds the wait set without that entity.
+        """
+        from rclpy._rclpy_pybind11 import InvalidHandle, RCLError
         from rclpy.executors import ExternalShutdownException
-        try:
-            self.executor.spin()
-        except (ExternalShutdownException, RCLError):
-            # close() shut the context down: spin() woke up and ends here (or, shut down while
-            # building its next wait set, failed to build it)
-            if self.context.ok():
-                raise
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.1)
+            except InvalidHandle:
+                continue
+            except (ExternalShutdownException, RCLError):
+                # close() shut the context down: spin_once() woke up and ends here (or, shut
+                # down while building its next wait set, failed to build it)
+                if self.context.ok():
+                    raise
 
     def add(self, node: Any) -> Any:
         """Spin ``node`` (created with ``context=self.context``); returns it."""

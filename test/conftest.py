@@ -49,6 +49,7 @@ OFFLINE_MODULES = {
     'test_cell_trial_figures',
     'test_closed_loop_offline', 'test_control_law', 'test_engine',
     'test_filters_env', 'test_flake8', 'test_flight_recorder', 'test_force_target_and_tare',
+    'test_fuzz_offline',
     'test_input_plausibility',
     'test_layers', 'test_loop_stats', 'test_margin', 'test_model_construction',
     'test_model_oracle', 'test_moving_normal',

@@ -41,7 +41,7 @@ class StiffnessStatus(NamedTuple):
     near_k_max: bool      # (S8) on a known or saturated estimate (not the prior): WARN
     saturated: bool       # held at k_min or k_max by the projection
     samples_used: int     # exciting samples (S5) since the start
-    samples_rejected: int  # non-finite samples
+    samples_rejected: int  # non-finite samples and jumps of x_n (S10)
     contacts: int         # contact episodes seen
     changes: int          # surface changes detected in contact (S9)
     restarts: int         # times the surface became unknown (losses and changes)

@@ -295,10 +295,15 @@ def test_a_glitch_of_0_2_rad_is_refused_and_the_force_holds(model, clean):
 
 
 def test_without_the_joint_check_the_glitch_reaches_the_law(model, clean):
-    """Negative control: max_joint_jump 0 and no velocity check."""
+    """
+    Negative control: max_joint_jump 0 and no velocity check.
+
+    The force moves by 0.33 N (0.01 N with the check; more than 0.5 N before the stiffness
+    estimate refused spikes of x_n, (S10), which this glitch also is).
+    """
     run = Run(model, 2.3, faults={2000: glitch(np.array([0.2, 0.0]))}, max_joint_jump=0.0)
     assert run.rt.counters['joint_state_implausible'] == 0
-    assert np.max(np.abs(run.f - clean.f[:run.f.size])) > 0.5
+    assert np.max(np.abs(run.f - clean.f[:run.f.size])) > 0.2
 
 
 def test_without_the_clock_check_an_hour_ahead_wrench_locks_the_wrench_out(model, clean):

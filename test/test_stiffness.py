@@ -72,8 +72,8 @@ def test_valid_needs_twenty_exciting_samples():
     """
     est = make(force_filter_hz=0.0)
     x_n = X0 + 1e-3 * np.arange(30)
-    for i, x in enumerate(x_n):  # 1 mm per 20 ms: slower than (S10)'s v_max
-        est.update(300.0 * (x - X0) + 0.2, float(x), 0.02, True)
+    for i, x in enumerate(x_n):
+        est.update(300.0 * (x - X0) + 0.2, float(x), DT, True)
         if est.samples_used == 19:
             assert est.k_hat_std <= 0.05 * est.k_hat and not est.valid
     assert est.samples_used == 29 and est.valid
@@ -132,19 +132,15 @@ def test_re_anchor_forgets_the_origin_of_x_n_and_keeps_what_was_learnt_of_k():
     """
     A moving normal (surface.py): x_n jumped while the fit was paused; re_anchor moves its origin.
 
-    With it k_hat, its validity and most of its information stay, and the next loading goes on
-    fitting k. An unannounced jump in contact is no motion (S10): absorbed in three samples, it
-    neither moves k_hat nor counts as a change of the surface (before (S10) it was a misfit, a
-    change (S9), k_hat unknown again).
+    Without it the jump is a misfit, a change of the surface (S9): k_hat unknown again. With it
+    k_hat, its validity and most of its information stay, and the next loading goes on fitting k.
     """
     est, f, x = settled(1700.0)
     std = est.k_hat_std
     jumped = x + 0.02  # x_n's origin moved 2 cm (n_hat turned while the tool slid)
     plain, _, _ = settled(1700.0)
-    k_before, rejected = plain.k_hat, plain.samples_rejected
     feed(plain, np.full(50, f), np.full(50, jumped))
-    assert plain.changes == 0 and plain.k_hat == k_before and plain.valid
-    assert plain.samples_rejected == rejected + stiffness.STEP_SAMPLES  # then a new level
+    assert plain.changes == 1  # the check can fail: a jump unannounced is a new surface
     est.re_anchor()
     assert est.k_hat == pytest.approx(1700.0, rel=1e-4) and est.valid
     assert est.k_hat_std < 10.0 * std  # kappa's information kept (marginal over b)
@@ -267,7 +263,7 @@ def spiked(k: float, seed: int = 25) -> tuple[np.ndarray, np.ndarray]:
     f_n, x_n = synthetic(k)
     rng = np.random.default_rng(seed)
     x_n = x_n.copy()
-    at = np.arange(10, x_n.size, 20)
+    at = np.arange(1010, x_n.size, 20)  # from 1 s on: (S10) waits only for a valid estimate
     x_n[at] += rng.choice([-1.0, 1.0], at.size) * rng.uniform(5e-4, 1e-2, at.size)
     return f_n, x_n
 
@@ -277,27 +273,15 @@ def test_spikes_of_x_n_teach_nothing(k, monkeypatch):
     """
     (S10): a stray joint state within the input checks places the tool up to 1 cm off.
 
-    One sample in 20 so moved, during the press: k_hat is the clean run's; without (S10)
-    (v_max infinite) the spikes are leverage points and k_hat is far off.
+    One sample in 20 so moved, during the press once the estimate is valid: k_hat is the clean
+    run's; without (S10) (v_max infinite) the spikes are leverage points and k_hat is far off.
     """
     clean, dirty = make(), make()
     feed(clean, *synthetic(k))
     feed(dirty, *spiked(k))
     assert dirty.k_hat == pytest.approx(clean.k_hat, rel=1e-3) and dirty.valid
-    assert dirty.samples_rejected == np.arange(10, synthetic(k)[0].size, 20).size
+    assert dirty.samples_rejected == np.arange(1010, synthetic(k)[0].size, 20).size
     monkeypatch.setattr(stiffness, 'MAX_NORMAL_SPEED', math.inf)
     unguarded = make()
     feed(unguarded, *spiked(k))
-    assert abs(unguarded.k_hat / k - 1.0) > 0.2, unguarded.k_hat
-
-
-def test_a_step_of_x_n_in_contact_is_a_new_level_after_three_samples():
-    """(S10): a new coordinate (2 cm at once), then the press goes on: k_hat fits k, no change."""
-    f_n, x_n = synthetic(1700.0)
-    half = f_n.size // 2
-    x_n = np.r_[x_n[:half], x_n[half:] + 0.02]
-    est = make()
-    feed(est, f_n, x_n)
-    # the press's motion over the three samples is taken for part of the step: 0.16 % here
-    assert est.k_hat == pytest.approx(1700.0, rel=5e-3) and est.valid
-    assert est.changes == 0 and est.samples_rejected == stiffness.STEP_SAMPLES
+    assert abs(unguarded.k_hat / k - 1.0) > 0.1, unguarded.k_hat  # measured 15-98 % low

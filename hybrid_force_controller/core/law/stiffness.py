@@ -57,23 +57,22 @@ A change, and a contact loss (the caller's :meth:`StiffnessEstimator.restart`), 
 surface unknown again: the fit restarts from the prior and the k_s command jumps to
 ``max(k_s, k_s0)``, never a higher loop gain than the configured k_s gives.
 
-An in-contact sample whose raw ``x_n`` is further from the last accepted one (of the same
-contact, ``gap`` s before) than a tool in contact moves along n, ``v_max``
-(:data:`MAX_NORMAL_SPEED`) times ``gap``, is a spike or a change of coordinate, never motion.
-It teaches nothing, does not enter the filter (S0), and is counted as rejected::
+Once the estimate is valid, an in-contact sample whose raw ``x_n`` is further from the last
+learnt one than a settled contact moves along n in that time, ``v_max dt``
+(:data:`MAX_NORMAL_SPEED`), waits for the next sample, which says what it was::
 
-    |x_n,j - x_n,ok| > v_max gap_j   =>   sample j refused                              (S10)
+    |x_n,j - x_n,j-1| > v_max dt_j  and  |x_n,j+1 - x_n,j-1| <= v_max (dt_j + dt_j+1)
+        =>  sample j is a spike: refused, never learnt, not even by the filter (S0)      (S10)
 
-``STEP_SAMPLES`` refused samples in a row that agree with each other (within ``v_max dt``) are
-a new level (a new normal): the filter, the origin ``x_ref`` (S2) and the mean ``x_bar`` (S5)
-move by the step, and the stream goes on from there, so nothing is locked out.
+otherwise it was motion (or a new coordinate) and is learnt, one sample late, exactly as
+without (S10). So real motion of any speed is learnt in full, and nothing is locked out.
 
 A joint state within the input checks (``max_joint_jump``, 0.01 rad by default) may still
 place the tool a centimetre off for one sample: a corrupted or stray message. Through (S0)
 such a spike is a leverage point of the fit; a fuzz of corrupted messages taught a valid
 k_hat of 50-300 N/m on a 1700 N/m surface, and k_s followed it down to a fifth of k, where
-the force loop breaks (a 504 N impact; docs/results.md, section 25). The sample after the
-spike is measured against the sample before the spike, so it passes.
+the force loop breaks (a 504 N impact; docs/results.md, section 25). Before the estimate is
+valid (a first contact's loading) nothing waits.
 """
 from __future__ import annotations
 
@@ -81,12 +80,11 @@ import math
 
 from ..config.groups import StiffnessConfig, StiffnessConfigError, StiffnessError
 
-__all__ = ['MAX_NORMAL_SPEED', 'MIN_SAMPLES', 'STEP_SAMPLES', 'StiffnessConfig',
+__all__ = ['MAX_NORMAL_SPEED', 'MIN_SAMPLES', 'StiffnessConfig',
            'StiffnessConfigError', 'StiffnessError', 'StiffnessEstimator']
 
 MIN_SAMPLES = 20.0  # effective exciting samples before the estimate may be valid (S6)
 MAX_NORMAL_SPEED = 0.1  # v_max of (S10), m/s: 0.1 mm per 1 ms sample (a contact: mm/s)
-STEP_SAMPLES = 3  # refused samples in a row, agreeing, that are a new level of x_n (S10)
 CHANGE_TIME = 0.02  # T_c of (S9), s: |eps| must exceed delta_c by this much force x time
 
 
@@ -110,8 +108,8 @@ class StiffnessEstimator:
         """Forget all data; restart k_hat and k_s from ``k_hat0`` (default: the config's prior)."""
         k0 = self.config.prior if k_hat0 is None else float(k_hat0)
         self._x_f: float | None = None  # x_n through the force filter (S0)
-        self._x_last: float | None = None  # the last accepted in-contact raw x_n (S10)
-        self._gap, self._run, self._x_jump = 0.0, 0, 0.0  # since it, s; refused in a row
+        self._x_last: float | None = None  # the last learnt in-contact raw x_n (S10)
+        self._held: tuple[float, float, float] | None = None  # a far sample, (f_n, x_n, dt)
         self.forget_data(k0)
         self._k_s = k0
         self.k_s_log_rate = 0.0  # d ln k_s / dt of the last k_s_command (for rdot)
@@ -138,7 +136,7 @@ class StiffnessEstimator:
         self._x_ref: float | None = None
         self._x_bar = 0.0
         if restart_filter:
-            self._x_f = self._x_last = None
+            self._x_f = self._x_last = self._held = None
         self._cusum = 0.0  # S of (S9), N s
         self.saturated = False  # the projection onto [k_min, k_max] was active (S6)
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
@@ -158,7 +156,7 @@ class StiffnessEstimator:
         self._r_uu = max(self._r_uu - self._r_ub * self._r_ub / self._r_bb, rho)
         self._r_ub, self._r_bb = 0.0, rho
         self._x_ref, self._x_f, self._cusum = None, None, 0.0  # (S0) restarts at the new x_n
-        self._x_last = None  # (S10): the new x_n is no jump
+        self._x_last = self._held = None  # (S10): the new x_n is no jump
 
     def restart(self) -> None:
         """
@@ -248,8 +246,8 @@ class StiffnessEstimator:
         """
         Feed one sample; return k_hat (N/m).
 
-        Non-finite ``f_n`` / ``x_n``, and an ``x_n`` that jumped (S10), are ignored and counted
-        (``samples_rejected``).
+        Non-finite ``f_n`` / ``x_n``, and a spike of ``x_n`` (S10), are ignored and counted
+        (``samples_rejected``); a sample far from the last waits for the next one (S10).
         Raises :class:`StiffnessError` on a bad ``dt`` or a non-numeric sample.
 
         Parameters
@@ -266,7 +264,7 @@ class StiffnessEstimator:
             The caller's contact test; samples out of contact are ignored.
 
         """
-        _, lam, alpha, a, _ = self._factors(dt)
+        self._factors(dt)  # checks dt
         self.excited, self.excitation_n = False, 0.0
         try:
             f_n, x_n = float(f_n), float(x_n)
@@ -275,10 +273,23 @@ class StiffnessEstimator:
         if not (math.isfinite(f_n) and math.isfinite(x_n)):
             self.samples_rejected += 1
             return self.k_hat
-        if not in_contact:
-            self._x_last = None  # (S10) compares samples of one contact
-        if in_contact and self._jumped(x_n, dt):  # (S10)
+        held, self._held = self._held, None
+        if held is not None:  # (S10): the sample after a far one says what the far one was
+            if in_contact and abs(x_n - self._x_last) <= MAX_NORMAL_SPEED * (held[2] + dt):
+                self.samples_rejected += 1  # back where it was: a spike, never learnt
+                dt += held[2]
+            else:
+                self._step(*held, True)  # motion: learnt one sample late
+        elif (in_contact and self._valid and self._x_last is not None
+              and abs(x_n - self._x_last) > MAX_NORMAL_SPEED * dt):
+            self._held = (f_n, x_n, dt)
             return self.k_hat
+        return self._step(f_n, x_n, dt, in_contact)
+
+    def _step(self, f_n: float, x_n: float, dt: float, in_contact: bool) -> float:
+        """(S0)-(S9) on one finite sample that (S10) let through."""
+        _, lam, alpha, a, _ = self._factors(dt)
+        self._x_last = x_n if in_contact else None
         self._x_f = x_n if self._x_f is None else self._x_f + a * (x_n - self._x_f)  # (S0)
         x_n = self._x_f
         if not in_contact:
@@ -299,38 +310,6 @@ class StiffnessEstimator:
         self.samples_used += 1
         self._rls_step(self.config.k_max * (x_n - self._x_ref), f_n, lam)
         return self.k_hat
-
-    def _jumped(self, x_n: float, dt: float) -> bool:
-        """
-        (S10) on an in-contact sample: say whether it is refused (a jump not yet confirmed).
-
-        The reference is the last accepted sample, ``gap`` s before; STEP_SAMPLES refused
-        samples in a row that agree with each other are a new level: the filter, the origin
-        and the mean move to it, and the stream goes on from there.
-        """
-        x_ok = self._x_last
-        if x_ok is None:  # the first in-contact sample
-            self._x_last, self._gap, self._run = x_n, 0.0, 0
-            return False
-        self._gap += dt
-        if abs(x_n - x_ok) <= MAX_NORMAL_SPEED * self._gap:
-            self._x_last, self._gap, self._run = x_n, 0.0, 0
-            return False
-        agrees = self._run and abs(x_n - self._x_jump) <= MAX_NORMAL_SPEED * dt
-        self._run, self._x_jump = (self._run + 1 if agrees else 1), x_n
-        self.samples_rejected += 1
-        if self._run >= STEP_SAMPLES:  # a new coordinate, not a spike
-            self._shift(x_n - x_ok)
-            self._x_last, self._gap, self._run = x_n, 0.0, 0
-        return True
-
-    def _shift(self, jump: float) -> None:
-        """Move the filter (S0), the origin (S2) and the mean (S5) with a jump of x_n (S10)."""
-        if self._x_f is not None:
-            self._x_f += jump
-        if self._x_ref is not None:
-            self._x_ref += jump
-            self._x_bar += jump
 
     def _changed(self, f_n: float, x_n: float, dt: float) -> bool:
         """(S9) on one in-contact sample; only a valid estimate is tested."""

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import time
 from typing import Any
 
 import numpy as np
@@ -68,27 +67,3 @@ def needs_cpus(n: int, why: str):
     """Return a mark that skips a test when this process may run on fewer than ``n`` CPUs."""
     have = len(os.sched_getaffinity(0))
     return pytest.mark.skipif(have < n, reason=f'needs {n} CPUs ({have} here): {why}')
-
-
-def idle_cpus(seconds: float = 1.0) -> float:
-    """
-    Return how many CPUs of this process's set stood idle over ``seconds`` (/proc/stat).
-
-    For a real-time test that is meaningful only with a CPU to spare beside the loop: it checks
-    the machine first (the suite's other worker, a user's load) and skips, saying why.
-    """
-    cpus = sorted(os.sched_getaffinity(0))
-
-    def sample() -> dict[int, tuple[int, int]]:
-        out = {}
-        with open('/proc/stat', encoding='ascii') as f:
-            for line in f:
-                name, *fields = line.split()
-                if name.startswith('cpu') and name[3:].isdigit() and int(name[3:]) in cpus:
-                    values = [int(v) for v in fields]
-                    out[int(name[3:])] = (values[3] + values[4], sum(values))  # idle + iowait
-        return out
-    before = sample()
-    time.sleep(seconds)  # the measurement itself: a window of the machine's load
-    after = sample()
-    return sum((after[c][0] - before[c][0]) / max(after[c][1] - before[c][1], 1) for c in after)

@@ -285,3 +285,14 @@ def test_spikes_of_x_n_teach_nothing(k, monkeypatch):
     unguarded = make()
     feed(unguarded, *spiked(k))
     assert abs(unguarded.k_hat / k - 1.0) > 0.1, unguarded.k_hat  # measured 15-98 % low
+
+
+def test_a_far_sample_held_at_a_restart_is_not_the_new_fits_first():
+    """(S10) holds a far sample; a restart (contact lost) drops it: the new fit is the same."""
+    (held, f, x), plain = settled(1700.0), settled(1700.0)[0]
+    held.update(f, x + 0.01, DT, True)  # 1 cm in 1 ms: held for the next sample
+    assert held.samples_rejected == plain.samples_rejected  # not refused yet
+    for est in (held, plain):
+        est.restart()
+    f_n, x_n = synthetic(500.0)
+    assert np.array_equal(feed(held, f_n, x_n + 0.03), feed(plain, f_n, x_n + 0.03))

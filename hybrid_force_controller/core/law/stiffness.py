@@ -136,11 +136,12 @@ class StiffnessEstimator:
         self._x_ref: float | None = None
         self._x_bar = 0.0
         if restart_filter:
-            self._x_f = self._x_last = self._held = None
+            self._x_f = self._x_last = None
         self._cusum = 0.0  # S of (S9), N s
         self.saturated = False  # the projection onto [k_min, k_max] was active (S6)
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
         self._valid = False  # (S6), evaluated once per change of the fit
+        self._held = None  # (S10): a sample held for the old fit is not the new fit's first
 
     def re_anchor(self) -> None:
         """

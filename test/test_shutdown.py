@@ -70,7 +70,9 @@ def _sigint_and_check(proc: NodeProcess, kids: list[int] = ()) -> None:
     """Ctrl-C ends ``proc`` and its ``kids`` cleanly; the kids are killed on every path."""
     try:
         proc.signal(signal.SIGINT)
-        wait_for(lambda: not proc.alive, 'the process to exit after SIGINT', timeout=30.0)
+        wait_for(lambda: not proc.alive,  # a hang says where the program stood (its log)
+                 lambda: f'the process to exit after SIGINT; its log:\n{proc.log_since()[-3000:]}'
+                 f'\nits children then: {child_pids(proc.pid)}', timeout=30.0)
         log = proc.log_since()
         assert proc.returncode == 0, log[-3000:]
         assert 'Traceback' not in log and 'RCLError' not in log, log[-3000:]

@@ -25,7 +25,7 @@ from hybrid_force_controller.core.offline import engine
 from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
 from hybrid_force_controller.ros.common.cdr import CdrError, read_joint_state, read_wrench_stamped
-from hybrid_force_controller.ros.lab.injector import corrupt, CORRUPTIONS
+from hybrid_force_controller.ros.lab.injector import corrupt, CORRUPTIONS, FRESH_LEAD_S
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
@@ -33,7 +33,6 @@ from sensor_msgs.msg import JointState
 
 
 T0, T1, PERIOD = 5.0, 7.0, 0.002  # the fuzz: one message every 2 ms, as the injector's timer
-LEAD = 0.03  # the injector stamps its copies this far ahead (FRESH_LEAD_S)
 TOLERANCE = 0.1  # the sender clock's tolerance: a stamp moved further is refused
 
 
@@ -84,7 +83,7 @@ def fuzzed_run(monkeypatch):
             k = sent[0]
             sent[0] += 1
             kind = ('joint_state', 'wrench')[k % 2]
-            stamp = t + LEAD
+            stamp = t + FRESH_LEAD_S  # the injector stamps its copies this far ahead
             raw = corrupt(_message(kind, names, frame, meas, stamp), kind, rng,
                           CORRUPTIONS[(k // 2) % len(CORRUPTIONS)])
             _hand_over(runtime, kind, raw, t, stamp)

@@ -109,7 +109,6 @@ class StiffnessEstimator:
         k0 = self.config.prior if k_hat0 is None else float(k_hat0)
         self._x_f: float | None = None  # x_n through the force filter (S0)
         self._x_last: float | None = None  # the last learnt in-contact raw x_n (S10)
-        self._held: tuple[float, float, float] | None = None  # a far sample, (f_n, x_n, dt)
         self.forget_data(k0)
         self._k_s = k0
         self.k_s_log_rate = 0.0  # d ln k_s / dt of the last k_s_command (for rdot)
@@ -141,7 +140,8 @@ class StiffnessEstimator:
         self.saturated = False  # the projection onto [k_min, k_max] was active (S6)
         self._w = self._s2_sum = 0.0  # effective sample count and weighted residual^2 (S6)
         self._valid = False  # (S6), evaluated once per change of the fit
-        self._held = None  # (S10): a sample held for the old fit is not the new fit's first
+        # (S10): a far sample (f_n, x_n, dt) held for the old fit is not the new fit's first
+        self._held: tuple[float, float, float] | None = None
 
     def re_anchor(self) -> None:
         """

@@ -155,7 +155,9 @@ def test_the_wipe_task_tares_and_follows_the_users_path(tmp_path):
     ``demo --task wipe`` on the paper's arm: the biased sensor tared, a script's path followed.
 
     The paper's planar arm follows the square's part in its task space (along x, there and
-    back). Bounds: 5 times the worst of the measured runs (test/realtime_bounds.json).
+    back). Bounds: 5 times the worst of the measured runs (test/realtime_bounds.json): no contact
+    lost on the path; over the whole run, the pressing's first swing from the brakes' zero-force
+    touch lifted the tool in 2 of 37 runs, both on one CPU (0.040, 0.058 s): 5 times the worst.
     """
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=DEMO_DOMAIN_ID,
                PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]),
@@ -173,8 +175,9 @@ def test_the_wipe_task_tares_and_follows_the_users_path(tmp_path):
     assert metrics['task'] == 'wipe' and metrics['tared'] is True
     assert metrics['path_window'] == 'path running'
     report_figure(current_test(), **{k: metrics.get(k) for k in (
-        'rms_path_error_m', 'max_path_error_m', 'rms_force_error_n', 'contact_lost_s')})
-    check_bounds(metrics)  # path rms and max, force rms, contact lost (realtime_bounds.json)
+        'rms_path_error_m', 'max_path_error_m', 'rms_force_error_n', 'contact_lost_s',
+        'contact_lost_window_s')})
+    check_bounds(metrics)  # path rms and max, force rms, contact lost: whole run and path
 
 
 @pytest.mark.parametrize('demo_run', ['lockstep'], indirect=True)  # the fixture's lockstep run

@@ -165,7 +165,10 @@ def test_sim_rejects_bad_commands_holds_then_zeroes(healthy):
         try:
             t_stop = rig.now
             rig.run_for(0.002)  # two watchdog steps: the last controller command is held
-            last = np.array(rig.proxy.js_raw.effort)
+            # the effort of those steps, not of the newest state: the sim steps on (every 0.2 s
+            # of wall time) and zeroes it after COMMAND_TIMEOUT, before a slow reader looks (s47c)
+            held = [m for t, m in list(rig.proxy.js_log) if t_stop < t <= t_stop + 0.002]
+            last = np.array((held[-1] if held else rig.proxy.js_raw).effort)
             # (this process may read the command after the state the sim stepped with it)
             rig.wait(lambda: any(np.array_equal(last, c) for _, c in rig.proxy.cmds[-3:]),
                      'the held effort among the last commands of the controller')

@@ -70,17 +70,43 @@ def pytest_configure(config):
                             'talks DDS (it runs in the serial group)')
 
 
+# Lockstep runs over DDS: the sim owns the time, so what they measure does not depend on the
+# wall clock or the machine's load (their pins and bounds hold under any load). On two CPUs or
+# more each module's (and the demo's lockstep run) is a group of its own that the other worker
+# takes, beside the real-time tests, as it takes the offline ones; on one CPU they stay in the
+# serial group, as their neighbours' bounds were measured. Each has a domain of its own.
+LOCKSTEP_MODULES = {'test_fault_injection', 'test_fault_inputs', 'test_nodes_closed_loop'}
+
+
 def _serial(item) -> bool:
     return (item.module.__name__ not in OFFLINE_MODULES
             or item.get_closest_marker('dds') is not None)
 
 
+def _lockstep(item) -> bool:
+    if item.module.__name__ in LOCKSTEP_MODULES:
+        return True
+    callspec = getattr(item, 'callspec', None)
+    return (item.module.__name__ == 'test_demo' and callspec is not None
+            and callspec.params.get('demo_run') == 'lockstep')
+
+
+def _group(item) -> str | None:
+    """Return the xdist group of ``item``: 'ros', a lockstep group or None (offline)."""
+    if not _serial(item):
+        return None
+    if _lockstep(item) and len(os.sched_getaffinity(0)) > 1:
+        return f'lockstep_{item.module.__name__.removeprefix("test_")}'
+    return 'ros'
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's worker adds the group to the node ids
 def pytest_collection_modifyitems(config, items):
-    """Put every test that is not offline into the serial group 'ros', first."""
+    """Put the serial tests in the group 'ros' and the lockstep ones in theirs, both first."""
     for item in items:
-        if _serial(item):
-            item.add_marker(pytest.mark.xdist_group('ros'))
+        group = _group(item)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
     items.sort(key=lambda item: not _serial(item))  # stable
 
 

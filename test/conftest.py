@@ -37,6 +37,7 @@ os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='hfc_suite_ros_home_')
 use_loopback_dds()
 
 import helpers.ros  # noqa: E402,F401,I100  (fixes the run's base domain before the modules load)
+import helpers.witness  # noqa: E402,I100
 
 
 # The suite runs on two workers (README: ``-n 2 --dist loadgroup``). Modules that start nodes,
@@ -124,7 +125,9 @@ _BASE_NICENESS = os.getpriority(os.PRIO_PROCESS, 0)
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
-    """On one CPU, run an offline test at :data:`OFFLINE_NICENESS`, a serial one as started."""
+    """Witness a real-time test's machine; on one CPU, run an offline test niced."""
+    if _serial(item) and not _lockstep(item):
+        helpers.witness.start_test()
     if len(os.sched_getaffinity(0)) > 1:
         return
     want = _BASE_NICENESS if _serial(item) else max(_BASE_NICENESS, OFFLINE_NICENESS)
@@ -134,6 +137,11 @@ def pytest_runtest_setup(item):
             os.setpriority(os.PRIO_PROCESS, 0, want)
         except PermissionError:  # back up needs CAP_SYS_NICE: the serial test runs niced
             warnings.warn(f'{item.nodeid} runs at niceness {now}, not {want}: not permitted')
+
+
+def pytest_runtest_teardown(item):
+    """End the real-time test's witnessed window: a later stall is not its own."""
+    helpers.witness.end_test()
 
 
 @pytest.fixture(scope='module')

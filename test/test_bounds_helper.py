@@ -2,8 +2,13 @@
 from __future__ import annotations
 
 import json
+import os
+import re
+import signal
+import time
 
-from helpers import bounds
+from helpers import bounds, witness
+from helpers.ros import wait_for
 import pytest
 
 TABLE = {'multiple': 5.0, 'measured': 'a test', 'bounds': {
@@ -60,3 +65,42 @@ def test_the_worst_of_the_runs_makes_the_bound(table, tmp_path, capsys):
     assert got['inner.peak']['bound'] == pytest.approx(15.0) and got['lost_s']['bound'] == 0.0
     assert got['doc']['worst'] == 0.5 and got['doc']['bound'] == pytest.approx(2.5)
     assert bounds.worst_of(lines)['test_x.py::test_y[a]']['rms'] == (float('inf'), 3)
+
+
+def test_a_stall_of_the_machine_skips_a_figure_out_of_bounds_and_says_so(table):
+    """
+    The witness writes down a stall (its own process stopped 0.1 s stands for the machine's).
+
+    Within the test's window a figure out of its bound skips the test, naming the stall; a
+    figure within passes; after the window ends the same figure fails as before.
+    """
+    test = 'test/test_x.py::test_y[a]'
+    witness.start_test()
+    try:
+        proc = witness._PROCS[0]
+        wait_for(lambda: 'cpu' in ''.join(p.read_text() for p in _files()), 'the witness')
+        if 'fifo' not in _files()[0].read_text():
+            pytest.skip('SCHED_FIFO is not permitted here: the witness counts no stall')
+        os.kill(proc.pid, signal.SIGSTOP)
+        try:
+            time.sleep(0.1)  # the stall itself, not a wait on a condition
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        wait_for(witness.stalls_text, 'the stall written down')
+        assert re.fullmatch(r'the machine stalled: CPU \d+ 1\d\d ms at -?0\.\d\d s into the test '
+                            r'\(fifo\)', witness.stalls_text()), witness.stalls_text()
+        bounds.check_bounds({'rms': 0.05}, test=test)
+        with pytest.raises(pytest.skip.Exception, match=r'the machine stalled: CPU .*; out of '
+                           r'bounds meanwhile: rms = 0.051 > 0.05'):
+            bounds.check_bounds({'rms': 0.051}, test=test)
+        witness.end_test()
+        assert witness.stalls_text() == ''
+        with pytest.raises(AssertionError, match='rms = 0.051 > 0.05'):
+            bounds.check_bounds({'rms': 0.051}, test=test)
+    finally:
+        witness.end_test()
+        witness.stop()
+
+
+def _files():
+    return sorted(witness._STATE['dir'].glob('cpu*.txt'))

@@ -23,6 +23,7 @@ from typing import Any, Iterable, Sequence
 from helpers.figures import current_test, report_figure
 from helpers.ros import (CONTROLLER_MODULE, ISOLATED, node_env, NodeProcess, parse_diagnostics,
                          SIM_MODULE, Spun, stamp_s, wait_for)
+from helpers.witness import stalls_text
 import numpy as np
 
 
@@ -243,7 +244,8 @@ def assert_clean_run(ctrl: dict[str, Any], sim: dict[str, Any] | None = None,
     error; the sim's callbacks no error. And no input refused, ``safe_mode_entries`` safe-mode
     entries (None: not checked, where a test's own fault may cause one) - in real time (``run``:
     the controller's statuses over the run) only when the controller's own measures say this
-    machine kept the loop (:func:`loop_kept_up`); else those counts are printed and handed on
+    machine kept the loop (:func:`loop_kept_up`) and the machine itself did not stall
+    (:mod:`helpers.witness`); else those counts are printed and handed on
     (helpers.figures.report_figure), not asserted: they are then this machine's speed.
     """
     problems = []
@@ -255,7 +257,7 @@ def assert_clean_run(ctrl: dict[str, Any], sim: dict[str, Any] | None = None,
         problems.append(f"{sim['errors']} errors in the sim's callbacks")
     refused = {k: v for k, v in callback_errors(ctrl).items() if k in REFUSED}
     safe = ctrl.get('safe_mode_entries')
-    slow = '' if run is None else loop_kept_up(run)
+    slow = '' if run is None else (loop_kept_up(run) or stalls_text())
     if slow:
         print(f'not asserted ({slow}): refused inputs {refused}, {safe} safe-mode entries')
         report_figure(current_test(), machine_did_not_keep_up=slow, refused_inputs=refused,

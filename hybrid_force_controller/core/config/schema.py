@@ -137,8 +137,7 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        'Largest plausible force reading, N; larger readings (or a saturated sensor) are '
        'dropped.', 0.0, 1e6, positive=True),
     _S('wrench_rate_limit', 'double', 20000.0,
-       'Largest plausible change of the force reading, N/s, over one control period at '
-       'least; faster changes are dropped.',
+       'Largest plausible change of the force reading, N/s; faster changes are dropped.',
        0.0, 1e9, positive=True),
     _S('max_clock_skew', 'double', 10.0,
        "Largest plausible difference between an input's stamp and the controller's clock "
@@ -152,8 +151,7 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        'refused (0: off).', 0.0, 1e3),
     _S('max_joint_acceleration', 'double', 1000.0,
        'Largest plausible change of a joint velocity between two joint states, per second '
-       'between their stamps (one control period at least), rad/s^2 (m/s^2); a faster one is '
-       'refused (0: off).', 0.0, 1e9),
+       'between their stamps, rad/s^2 (m/s^2); a faster one is refused (0: off).', 0.0, 1e9),
     _S('joint_velocity_margin', 'double', 1.5,
        "A joint velocity beyond the URDF's velocity limit times this is refused (joints "
        'without a limit are not checked; 0: off, else >= 1).', 0.0, 1e3),

@@ -13,12 +13,7 @@ after the gap any position is accepted, as the arm may really have been moved me
 A refused state is never the one later states are compared against. :class:`WrenchGate` decides
 whether a wrench reading is plausible: finite, in a known frame, not older than the last,
 within ``wrench_limit`` and not changing faster than ``wrench_rate_limit`` from the last
-accepted reading. Both rates (a velocity's and the force's) are taken over at least
-``min_dt`` (the control period): a driver that stamps a reading when it sends it, late, and
-the next one on time, hands over two readings a period apart in the world and a fraction of it
-apart in their stamps (the sim stamps so; a ros2_control broadcaster stamps the loop's time),
-and the world did not change faster for that. An outlier is a step, not a slope: one period
-is enough to refuse it. A frozen sensor (bit-identical non-zero readings) is flagged so the
+accepted reading. A frozen sensor (bit-identical non-zero readings) is flagged so the
 runtime can treat its value as stale; (practically) exact zeros are exempt, since that is what
 a noise-free simulated sensor reports out of contact, also once its bias is tared away (the
 offset, a mean of identical readings, may differ from them in the last bit; a real sensor is
@@ -87,14 +82,13 @@ class JointInput:
         self.configure_checks(np.full(len(self.model_joints), np.inf), 0.0, 0.0, 0.0, 0.0)
 
     def configure_checks(self, v_limit: np.ndarray, margin: float, max_jump: float,
-                         max_accel: float, gap: float, min_dt: float = 0.0) -> None:
+                         max_accel: float, gap: float) -> None:
         """
         Set the plausibility bounds (model order; 0: that check is off).
 
         ``v_limit`` the URDF's velocity limits (0 or inf: none), ``margin`` the factor
         on them, ``max_jump`` the position bound, ``max_accel`` the largest velocity change
-        per second and ``gap`` the time within which these two apply; a velocity's change is
-        bounded over ``min_dt`` at least (the module docstring).
+        per second and ``gap`` the time within which these two apply.
         """
         v_limit = np.asarray(v_limit, dtype=float)
         limited = np.isfinite(v_limit) & (v_limit > 0.0)
@@ -103,7 +97,7 @@ class JointInput:
         self._v_limit, self._margin = v_limit, margin
         self._check_v = bool(margin > 0.0 and limited.any())
         self._v_max_list = self._v_max.tolist()
-        self.max_jump, self.max_accel, self.gap, self.min_dt = max_jump, max_accel, gap, min_dt
+        self.max_jump, self.max_accel, self.gap = max_jump, max_accel, gap
 
     def _index(self, names: Sequence[str]) -> list[int]:
         key = tuple(names)
@@ -149,13 +143,13 @@ class JointInput:
         Refuse a step from ``last`` that the velocities do not explain, or a velocity jump.
 
         Position: further than the trapezoidal rule plus max_jump; velocity: a change
-        beyond max_accel max(dt, min_dt) (a joint velocity discontinuity).
+        beyond max_accel dt (a joint velocity discontinuity).
         """
         lq, lv = (self._last_lists if last is self._last else
                   (last.q.tolist(), last.qdot.tolist()))
         h = 0.5 * dt
         bound = self.max_jump or math.inf
-        dv_max = self.max_accel * max(dt, self.min_dt) if self.max_accel else math.inf
+        dv_max = self.max_accel * dt if self.max_accel else math.inf
         for i, (a, b, c, d) in enumerate(zip(qs, lq, vs, lv)):
             if abs(a - b - h * (c + d)) > bound:
                 e = np.array(qs) - last.q - h * (np.array(vs) + last.qdot)
@@ -183,19 +177,15 @@ class JointInput:
 class WrenchGate:
     """Plausibility of wrench readings (see the module docstring)."""
 
-    def __init__(self, frame_exists, wrench_limit: float, wrench_rate_limit: float,
-                 min_dt: float = 0.0) -> None:
+    def __init__(self, frame_exists, wrench_limit: float, wrench_rate_limit: float) -> None:
         self._frame_exists = frame_exists
-        self.configure(wrench_limit, wrench_rate_limit, min_dt)
+        self.configure(wrench_limit, wrench_rate_limit)
         self.last: WrenchSample | None = None
         self.frozen_since: float | None = None
         self._last_xyz = (0.0, 0.0, 0.0)
 
-    def configure(self, wrench_limit: float, wrench_rate_limit: float,
-                  min_dt: float = 0.0) -> None:
-        """Set the limits; the rate is taken over ``min_dt`` at least (module docstring)."""
+    def configure(self, wrench_limit: float, wrench_rate_limit: float) -> None:
         self.wrench_limit, self.wrench_rate_limit = wrench_limit, wrench_rate_limit
-        self.min_dt = min_dt
 
     def reset(self) -> None:
         self.last, self.frozen_since = None, None
@@ -220,7 +210,7 @@ class WrenchGate:
         same_frame = last is not None and frame_id == last.frame_id
         if same_frame and t > last.t:
             lx, ly, lz = self._last_xyz
-            rate = math.hypot(fx - lx, fy - ly, fz - lz) / max(t - last.t, self.min_dt)
+            rate = math.hypot(fx - lx, fy - ly, fz - lz) / (t - last.t)
             if rate > self.wrench_rate_limit:
                 raise ImplausibleWrench(f'implausible wrench: changes at {rate:.4g} N/s > '
                                         f'wrench_rate_limit {self.wrench_rate_limit:g} N/s')

@@ -61,11 +61,10 @@ class LatestInputs:
         self._joints = JointInput(self.model.joint_names, rt.joints)
         # a jump is refused up to 2 state_timeout after the last accepted state: a burst
         # longer than state_timeout is safe mode (stale), then the new position is adopted
-        # the rates over one control period at least (inputs.py: stamps of late sends)
         self._joints.configure_checks(self.model.velocity_limits, rt.joint_velocity_margin,
                                       rt.max_joint_jump, rt.max_joint_acceleration,
-                                      2.0 * rt.state_timeout, 1.0 / rt.rate_hz)
-        self.gate.configure(rt.wrench_limit, rt.wrench_rate_limit, 1.0 / rt.rate_hz)
+                                      2.0 * rt.state_timeout)
+        self.gate.configure(rt.wrench_limit, rt.wrench_rate_limit)
         for clock in self.clocks.values():
             clock.configure(rt.max_clock_skew, rt.state_timeout, 2.0 * rt.state_timeout,
                             0.5 / rt.rate_hz)

@@ -116,9 +116,8 @@ def pytest_collection_modifyitems(config, items):
 # cell alone on one CPU. Beside it at the same priority the cell ran at 530 Hz and the force loop
 # rang near its delay margin (docs/results.md section 26). Under SCHED_IDLE instead the cells
 # stopped for seconds (s49e, section 27; likely a task that hardly ever runs holding what they
-# wait for, as a file system's journal). On two
-# CPUs each worker has one and nothing is changed (niced there, the offline worker took 50 s
-# longer and the cells 5 s less).
+# wait for, as a file system's journal). On two CPUs each worker has one and nothing is changed
+# (niced there, the offline worker took 50 s longer and the cells 5 s less).
 OFFLINE_NICENESS = 10
 _BASE_NICENESS = os.getpriority(os.PRIO_PROCESS, 0)
 

@@ -29,8 +29,6 @@ DURATION_S = 10.0  # the metrics start at 5 s: 5 s of them
 RATE_HZ = 1000.0
 TELEMETRY_HZ = 100.0  # telemetry_rate_hz in config/params.yaml
 DEMO_DOMAIN_ID = str(domain_id('demo'))
-# the lockstep run may run beside this module's real-time ones (conftest.py, LOCKSTEP)
-LOCKSTEP_DOMAIN_ID = str(domain_id('demo_lockstep'))
 
 
 @pytest.fixture(scope='module', params=['real_time', 'lockstep'])
@@ -38,7 +36,7 @@ def demo_run(tmp_path_factory, request) -> Path:
     out = tmp_path_factory.mktemp(f'demo_{request.param}')
     mode = ['--lockstep'] if request.param == 'lockstep' else []
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=LOCKSTEP_DOMAIN_ID if mode else DEMO_DOMAIN_ID,
+               ROS_DOMAIN_ID=DEMO_DOMAIN_ID,
                PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')]),
                **ISOLATED)  # as a user runs it: the cell domain behind the gateway
     proc = subprocess.run([sys.executable, '-m', 'hybrid_force_controller.ros.programs.demo',

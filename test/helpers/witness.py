@@ -12,9 +12,9 @@ so in its file (its gaps may then be the load's: they are written down, and not 
 
 * :func:`start_test`: start the witnesses (once) and mark the running real-time test's start;
 * :func:`stalls_text`: the stalls since that start, as a sentence ('' for none, or outside a
-  real-time test). :func:`helpers.bounds.check_bounds` and :func:`helpers.watch.assert_clean_run`
-  do not assert a real-time figure that is out of its bounds when the machine stalled meanwhile:
-  they skip the test, saying so, with the figures printed and handed on.
+  real-time test). :func:`helpers.bounds.check_bounds` skips a test whose figure is out of its
+  bound when the machine stalled meanwhile, saying both; :func:`helpers.watch.assert_clean_run`
+  then prints and hands on refused inputs and safe modes instead of asserting them.
 """
 from __future__ import annotations
 

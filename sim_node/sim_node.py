@@ -60,7 +60,8 @@ from hybrid_force_controller.ros.common.cdr import RawMessage, read_float64_arra
 from hybrid_force_controller.ros.common.loop_timing import GapMeter, RateMeter
 from hybrid_force_controller.ros.common.model_source import expand_description
 from hybrid_force_controller.ros.common.node_params import check_choice, check_cpus
-from hybrid_force_controller.ros.common.parameters import declare_schema, ParameterBinder
+from hybrid_force_controller.ros.common.parameters import (check_values, declare_schema,
+                                                           ParameterBinder)
 from hybrid_force_controller.ros.common.qos import (CLOCK_QOS, COMMAND_QOS, DEFAULT_QOS,
                                                     DESCRIPTION_QOS, STATE_OUT_QOS)
 from hybrid_force_controller.ros.common.runner import EXECUTORS, print_help, run_node, wants_help
@@ -121,6 +122,10 @@ class SimNode(Node):
         self.dt, self.lockstep = 1.0 / v['rate_hz'], bool(v['lockstep'])
         self.command_timeout, self.max_catch_up = v['command_timeout'], v['max_catch_up']
         self.lockstep_watchdog = v['lockstep_watchdog']
+        watchdog_spec = [s for s in SIM_SCHEMA if s.name == 'lockstep_watchdog']
+        self.watchdog_binder = ParameterBinder(
+            self, watchdog_spec, lambda v: check_values(watchdog_spec, v)['lockstep_watchdog'],
+            self._set_lockstep_watchdog)
         check_choice('watchdog_action', v['watchdog_action'], WATCHDOG_ACTIONS)
         self.brake_on_timeout = v['watchdog_action'] == 'brake'
         # sensor clocks off by a constant (a driver on an unsynced PC), ns
@@ -221,6 +226,9 @@ class SimNode(Node):
         """Swap the surface in; the contact torque measure() cached for the old one is dropped."""
         self.sim.surface, (self.sensor_frozen, self.sensor_offset) = values
         self.sim._tau_c = None
+
+    def _set_lockstep_watchdog(self, seconds: float) -> None:
+        self.lockstep_watchdog = seconds
 
     def _guarded(self, name: str, callback: Callable) -> Callable:
         """Wrap a callback: exceptions are counted and logged (throttled), never raised."""

@@ -2,7 +2,8 @@
 The sim node's parameters: one schema (declared with descriptors, validated at the boundary).
 
 :data:`SIM_SCHEMA` lists the plant's, the surface's (settable at run time: :data:`SURFACE`),
-the sensor's, MuJoCo's (mujoco_params.py) and the node's own scheduling parameters.
+the sensor's, MuJoCo's (mujoco_params.py) and the node's own scheduling parameters; those of
+:data:`RUNTIME` (the surface's and ``lockstep_watchdog``) are the ones settable at run time.
 """
 from __future__ import annotations
 
@@ -12,14 +13,15 @@ from hybrid_force_controller.ros.common.node_params import (CPU_AFFINITY_SPEC, E
 
 from .mujoco_params import MUJOCO_SCHEMA
 
-__all__ = ['HELP_PARAMETERS', 'SIM_SCHEMA', 'SURFACE', 'UNIT', 'WATCHDOG_ACTIONS']
+__all__ = ['HELP_PARAMETERS', 'RUNTIME', 'SIM_SCHEMA', 'SURFACE', 'UNIT', 'WATCHDOG_ACTIONS']
 
 WATCHDOG_ACTIONS = ('zero', 'brake')
 
 SURFACE = ('stiffness', 'surface_point', 'surface_normal', 'surface_enabled',  # settable
            'surface_shape', 'surface_radius', 'surface_axis', 'sensor_frozen', 'sensor_offset')
 UNIT = ('surface_normal', 'surface_axis')  # normalised on set
-SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
+RUNTIME = SURFACE + ('lockstep_watchdog',)  # settable at run time, each applied on its own
+SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in RUNTIME, **k) for *a, k in (
     ('rate_hz', 'double', 1000.0, 'Plant step rate, Hz (each step is 1/rate_hz).', 1.0, 1e5, {}),
     ('joints', 'string_array', ['joint1', 'joint2'], 'Joint order of states and commands.', {}),
     ('stiffness', 'double', 1700.0, 'Surface stiffness k, N/m.', 1e-6, 1e9, {}),
@@ -57,7 +59,8 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in SURFACE, **k) for *a, k in (
     ('lockstep', 'bool', False, 'Own the time: publish /clock, step once per command.', {}),
     ('lockstep_watchdog', 'double', 2.0, 'Lockstep: wall seconds without a command after '
      'which the sim steps anyway, once commands have come (before the first: 0.2 s). Long, '
-     'so that a busy machine slows the run instead of changing it.', 0.01, 60.0, {}),
+     'so that a busy machine slows the run instead of changing it; settable at run time (a '
+     'test that stops the controller on purpose shortens it meanwhile).', 0.01, 60.0, {}),
     ('max_catch_up', 'integer', 100, 'Real time: most periods a late timer callback '
      'integrates (older time is dropped and counted).', 1, 100000, {}),
     ('telemetry_rate_hz', 'double', 100.0, 'Rate of sim/contact_wrench and '

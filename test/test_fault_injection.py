@@ -159,7 +159,7 @@ def test_stale_wrench_safe_mode_with_rate_limit(healthy):
 def test_sim_rejects_bad_commands_holds_then_zeroes(healthy):
     """The controller is paused (SIGSTOP) so that this process alone commands the sim."""
     rig = healthy
-    with rig.case() as info:
+    with rig.case() as info, rig.quick_watchdog():
         rig.controller.signal(signal.SIGSTOP)
         rig.expect_alive['controller'] = False
         try:
@@ -285,7 +285,7 @@ def test_controller_restart_while_sim_runs(healthy):
     tracks again with no manual step.
     """
     rig = healthy
-    with rig.case():
+    with rig.case(), rig.quick_watchdog():
         rig.expect_alive['controller'] = False
         rig.controller.kill()
         t_kill = rig.now

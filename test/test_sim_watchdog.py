@@ -164,3 +164,22 @@ def test_lockstep_steps_without_a_command_after_0_2_s_then_after_lockstep_watchd
     finally:
         sim.destroy_node()
         context.try_shutdown()
+
+
+def test_lockstep_watchdog_is_set_at_run_time_and_a_refused_value_changes_nothing():
+    """A set of lockstep_watchdog applies at once; one outside 0.01-60 s is refused, named."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('sim_watchdog'))
+    sim = SimNode(context=context, parameter_overrides=[Parameter('lockstep', value=True)])
+    try:
+        assert sim.lockstep_watchdog == 2.0
+        assert sim.set_parameters([Parameter('lockstep_watchdog', value=0.2)])[0].successful
+        assert sim.lockstep_watchdog == 0.2
+        for bad in (0.001, 100.0, 'fast'):
+            result = sim.set_parameters([Parameter('lockstep_watchdog', value=bad)])[0]
+            assert not result.successful and 'lockstep_watchdog' in result.reason, result
+            assert sim.lockstep_watchdog == 0.2
+            assert sim.get_parameter('lockstep_watchdog').value == 0.2
+    finally:
+        sim.destroy_node()
+        context.try_shutdown()

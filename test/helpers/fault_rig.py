@@ -39,6 +39,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 RAW = '/fault_injection/raw'
 WALL_TIMEOUT = 90.0  # only against hangs
+LOCKSTEP_WATCHDOG = 2.0  # the sim's default, wall s without a command before it steps anyway
+QUICK_WATCHDOG = 0.2     # the same while a case stops the controller (Rig.quick_watchdog)
 INJECTED = 'fault_injection'  # layout label of commands this process publishes itself
 Hook = Callable[[Any], list]
 
@@ -172,9 +174,7 @@ class Rig:
                  '-r', f'/force_torque_sensor_broadcaster/wrench:={RAW}/wrench',
                  '-r', f'/clock:={RAW}/clock']
         self.sim = NodeProcess(SIM_MODULE, logs / 'sim.log', domain_id,
-                               ['-p', 'lockstep:=true', *sim_args, *remap,
-                                # the faults stop the controller: the sim steps on in 0.2 s
-                                '-p', 'lockstep_watchdog:=0.2'])
+                               ['-p', 'lockstep:=true', *sim_args, *remap])
         self.controller = NodeProcess(CONTROLLER_MODULE,
                                       logs / 'controller.log', domain_id,
                                       ['-p', 'use_sim_time:=true', *controller_args,
@@ -306,6 +306,22 @@ class Rig:
                 self.proxy.limits = np.asarray(limits, dtype=float)
             if rate is not None:
                 self.proxy.rate, self.proxy.rate_from = rate, self.proxy.now + 0.005
+
+    @contextmanager
+    def quick_watchdog(self) -> Iterator[None]:
+        """
+        Shorten the sim's lockstep watchdog to 0.2 s while a case stops the controller.
+
+        Otherwise the default (2 s) holds: a test process or controller starved for a second by
+        the real-time tests beside it slows the run and changes nothing (at 0.2 s, five watchdog
+        steps without a command zeroed the effort; docs/results.md section 28).
+        """
+        assert self.set_params(self.sim_params, lockstep_watchdog=QUICK_WATCHDOG)[0].successful
+        try:
+            yield
+        finally:
+            assert self.set_params(self.sim_params,
+                                   lockstep_watchdog=LOCKSTEP_WATCHDOG)[0].successful
 
     # ------------------------------------------------------------- parameters
     def set_params(self, client: AsyncParameterClient, **values) -> list:

@@ -7,6 +7,7 @@ own ROS domain (``dds``: it alone runs in the serial group, conftest.py).
 """
 from pathlib import Path
 
+from helpers.pins import check_pinned, numbers
 from helpers.ros import CONTROLLER_MODULE, domain_id, NodeProcess, Spun, wait_for, wait_future
 from hybrid_force_controller.core.model.parameter_sets import project_physical
 from hybrid_force_controller.core.model.robot_model import (default_urdf_path, ModelError,
@@ -135,6 +136,7 @@ def test_panda_closed_loop_with_mass_errors(panda):
     assert met['rms_force_error_n'] <= 0.05, met
     assert met['contact_lost_s'] == 0.0, met
     assert np.ptp(result.x_W[:, 0]) >= 0.08  # it really traced the 10 cm line
+    check_pinned('panda', numbers(met))  # test_pinned_figures.py's docstring
 
 
 # --------------------------------------------------------------------------- 3. parameter sets

@@ -16,10 +16,12 @@ Measured figures are in docs/results.md ("Learning the surface's normal").
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from helpers.figures import current_test, report_figure
 from helpers.offline import N_TOLD, panda_run, SURFACES, TILT
+from helpers.pins import check_pinned, numbers
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.offline.arm7 import panda_model, panda_scenario
 from hybrid_force_controller.core.offline.engine import run_loop
@@ -30,6 +32,8 @@ from hybrid_force_controller.core.offline.simulator import ArmSimulator
 from hybrid_force_controller.core.runtime.controller_runtime import (ControllerRuntime,
                                                                      FIRST_TOUCH_S)
 from hybrid_force_controller.core.runtime.surface import MAX_TILT_RAD
+from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
+from hybrid_force_controller.tools.normal_analysis import normal_metrics
 import numpy as np
 import pytest
 
@@ -98,6 +102,16 @@ def test_the_stiffness_estimate_stays_consistent_while_the_normal_moves(runs, su
     k = result.k_hat[result.t >= t_slide]
     assert np.all(np.isfinite(k))
     assert 0.85 * K_TRUE <= k.min() and k.max() <= 1.15 * K_TRUE, (k.min(), k.max())
+
+
+def test_the_sphere_run_gives_its_pinned_figures(runs):
+    """The sphere's run is a pinned one (test_pinned_figures.py's docstring)."""
+    res, t_path = runs['sphere']
+    log = dataclasses.replace(RunLog.from_result(res), n_hat_W=res.n_hat_W,
+                              n_true_W=res.n_true_W)
+    check_pinned('panda_normal_sphere', numbers({**compute_metrics(log, t_start=t_path),
+                                                 **normal_metrics(log),
+                                                 'path_start_s': t_path}))
 
 
 def test_negative_control_without_the_estimate_the_tilt_costs_force_and_stiffness(panda, runs):

@@ -10,10 +10,13 @@ pause in safe mode.
 from __future__ import annotations
 
 from helpers.offline import Loop
+from helpers.pins import check_pinned, numbers
 from hybrid_force_controller.core.law.path import follow_basis, PathLimits, plan_path
 from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
                                                        square_path_event)
 from hybrid_force_controller.core.offline.scenario import run_scenario
+from hybrid_force_controller.tools.analysis import compute_metrics, RunLog
+from hybrid_force_controller.tools.path_analysis import path_metrics
 import numpy as np
 
 DT = 1e-3
@@ -162,3 +165,7 @@ def test_the_panda_follows_a_small_square_on_its_tilted_plane():
     assert np.all(span > side * 0.95) and np.all(span < side * 1.3)
     assert result.runtime._motion.path_progress().state == 'done'
     assert sent['plan'].duration + sent['t'] < 6.5
+    log, t_path = RunLog.from_result(result), sent['t']  # the pinned run (test_pinned_figures)
+    check_pinned('panda_path', numbers({**compute_metrics(log, t_start=t_path),
+                                        **path_metrics(log, t_start=t_path),
+                                        'path_start_s': t_path}))

@@ -17,6 +17,7 @@ import dataclasses
 import math
 
 from helpers.offline import stiffness_metrics as metrics, stiffness_run as run, STIFFNESSES
+from helpers.pins import check_pinned, numbers
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.engine import Event
 from hybrid_force_controller.core.offline.scenario import ScenarioResult
@@ -61,6 +62,8 @@ def test_the_estimate_converges_and_the_loop_meets_the_targets(model, k, scale):
     assert st.enabled and st.valid and st.k_s == pytest.approx(k, rel=0.02)
     assert st.lambda2 == pytest.approx(0.1 * 6000.0 / st.k_s)
     assert m['stiffness_estimate_n_per_m'] == pytest.approx(k, rel=0.01)
+    if scale == 0.5:  # the pinned run (test_pinned_figures.py's docstring)
+        check_pinned(f'stiffness_k{k:.0f}_theta0.5', numbers(m))
     np.testing.assert_allclose(m['theta_hat_final'], res.theta_true, rtol=0.05)
 
 

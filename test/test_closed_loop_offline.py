@@ -7,6 +7,10 @@ Each run is 20 s of simulated time at 1 kHz. Targets over t >= 5 s: RMS tangenti
 position error <= 0.2 mm, RMS normal force error <= 0.02 N and no loss of contact. With
 the masses 50 % off the start-up transient may lift the tool off briefly (the gravity
 error is 10 times f_d and acts along n): <= 0.15 s over the whole run. No ROS.
+
+The same targets with two periods of delay, k = 300-5000 N/m and the masses 50 % low or high
+are test_stiffness_closed_loop's (12 s runs, the estimate of k on); a 20 s copy of that sweep
+here ran the same loop a second time (section 28 of docs/results.md).
 """
 from __future__ import annotations
 
@@ -46,14 +50,6 @@ def test_paper_scenario_meets_targets():
     after = res.t >= T_START
     assert np.ptp(res.x_W[after, 0]) > 0.19
     assert np.all(res.f_true_W[after] @ res.n_W > 0.9)
-
-
-@pytest.mark.parametrize('scale', [0.5, 1.5])
-@pytest.mark.parametrize('k', [500.0, 1700.0, 5000.0])
-def test_targets_with_delay_stiffness_and_wrong_masses(k, scale):
-    res, m = run(k=k, theta_hat0_scale=scale, delay_steps=2)
-    np.testing.assert_allclose(res.theta_hat[0], scale * res.theta_true, rtol=0.1)
-    assert_targets(m, START_LOSS_S)
 
 
 def test_three_step_delay_stiff_surface_stays_stable():

@@ -19,7 +19,7 @@ from rclpy.parameter_client import AsyncParameterClient
 
 
 WALL_TIMEOUT = 300.0
-RATE_HZ = 1000.0  # telemetry_rate_hz here: one sample a step
+RATE_HZ = 100.0  # telemetry_rate_hz here (every 10th step; 1 kHz cost 15 % more time, s51)
 
 
 def _force_error_rms(log: ForceLog, t0: float, t1: float, f_d: float) -> float:
@@ -32,7 +32,7 @@ def _force_error_rms(log: ForceLog, t0: float, t1: float, f_d: float) -> float:
 def loop(tmp_path_factory):
     logs = tmp_path_factory.mktemp('closed_loop')
     domain = domain_id('nodes_closed_loop')
-    full = ['-p', f'telemetry_rate_hz:={RATE_HZ}']  # every step: the test counts samples
+    full = ['-p', f'telemetry_rate_hz:={RATE_HZ}']  # the test counts samples at this rate
     procs = [NodeProcess(SIM_MODULE, logs / 'sim.log', domain, ['-p', 'lockstep:=true', *full]),
              NodeProcess(CONTROLLER_MODULE, logs / 'controller.log',
                          domain, ['-p', 'use_sim_time:=true', *full])]

@@ -176,7 +176,9 @@ def healthy(fault_rig, request):
     if fault_rig.broken:
         fault_rig.reset()
     fault_rig.broken = True  # until this case has passed
-    fault_rig.wait_tracking(3.0, 'before the case', fresh=False)
+    # 1 s in the band: a case's strict check (never out of the band after its fault) must
+    # not see the end of the last case's recovery
+    fault_rig.wait_tracking(3.0, 'before the case', window=1.0, fresh=False)
     failed = request.session.testsfailed
     yield fault_rig
     fault_rig.broken = request.session.testsfailed > failed

@@ -15,7 +15,7 @@ import math
 
 from helpers.fault_cases import (assert_unaffected, counters, delta, Every, input_fault_case,
                                  js_copy, MODEL, sensor_force, wrench_copy)
-from helpers.fault_rig import set_stamp, stamp_s
+from helpers.fault_rig import DIAG_PERIOD, set_stamp, stamp_s
 import numpy as np
 
 
@@ -151,3 +151,15 @@ def test_duplicate_stamps_are_harmless(healthy):
             assert delta(after, before, key) == 0, (key, before, after)
         assert after['mode'] == 'running'
         assert_unaffected(rig, t0, 'duplicate stamps')
+
+
+def test_diagnostics_come_at_diagnostic_updater_period(healthy):
+    """The rig sets ``diagnostic_updater.period`` to 0.1 s: one status per 0.1 s of sim time."""
+    rig = healthy
+    t0 = rig.now
+    rig.run_for(0.55)
+    rig.diag_after(t0 + 0.5, 'the fifth status')
+    with rig.proxy.cv:
+        stamps = np.array([t for t, _ in rig.proxy.diags if t >= t0])
+    assert stamps.size >= 5, stamps
+    np.testing.assert_allclose(np.diff(stamps), DIAG_PERIOD, atol=0.0015)

@@ -40,6 +40,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 RAW = '/fault_injection/raw'
 WALL_TIMEOUT = 90.0  # only against hangs
 LOCKSTEP_WATCHDOG = 2.0  # the sim's default, wall s without a command before it steps anyway
+DIAG_PERIOD = 0.1  # the controller's /diagnostics period here, s of sim time
 QUICK_WATCHDOG = 0.2     # the same while a case stops the controller (Rig.quick_watchdog)
 INJECTED = 'fault_injection'  # layout label of commands this process publishes itself
 Hook = Callable[[Any], list]
@@ -178,6 +179,9 @@ class Rig:
         self.controller = NodeProcess(CONTROLLER_MODULE,
                                       logs / 'controller.log', domain_id,
                                       ['-p', 'use_sim_time:=true', *controller_args,
+                                       # a status every 0.1 s of sim time: the cases wait for
+                                       # the one after their fault (1 s: a third of the time)
+                                       '-p', f'diagnostic_updater.period:={DIAG_PERIOD}',
                                        # every injected message is counted: reliable inputs
                                        # that keep a burst (the defaults keep only the newest)
                                        '-p', 'sensor_qos:=reliable', '-p', 'sensor_depth:=10'])

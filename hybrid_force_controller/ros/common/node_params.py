@@ -75,6 +75,10 @@ CONTROLLER_NODE_SCHEMA: tuple[_S, ...] = (
     _S('flight_recorder_max_force', 'double', 50.0,
        'A filtered force |f| above this (N) makes the flight recorder write its last 2 s '
        '(0: never for the force).', 0.0, 1e6, read_only=True),
+    _S('diagnostic_updater.period', 'double', 1.0,
+       "Period of the node's /diagnostics status, s, on the node's clock (sim time with "
+       "use_sim_time); the name and default of diagnostic_updater's.", 0.01, 60.0,
+       read_only=True),
 )
 
 

@@ -103,7 +103,8 @@ class ControllerNode(LifecycleNode):
         self._scheduling_reported = False
         self._node_scheduling: list[str] = []
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
-        self.create_timer(1.0, self._guarded('diagnostics', self._on_diagnostics))
+        self.create_timer(nv['diagnostic_updater.period'],
+                          self._guarded('diagnostics', self._on_diagnostics))
         self.create_timer(HOUSEKEEPING_S, self._guarded('housekeeping', self._housekeeping))
         if self._description_param() == '' and not nv['use_bundled_model']:
             self.create_subscription(String, TOPIC_DESCRIPTION,

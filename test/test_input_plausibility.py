@@ -81,6 +81,38 @@ def test_slow_first_message_is_forgotten_within_the_learning_second():
     assert np.max(np.abs(np.diff(t[400:]) - 1e-3)) < 5e-7
 
 
+@pytest.mark.parametrize('late', [0.15, 0.333])
+def test_a_first_message_held_up_costs_one_refused_message(late):
+    """
+    The first sample 150 or 333 ms late (Fast DDS's first send to a new reader can sleep).
+
+    The second looks that much early and is refused; the third agrees with it: the offset is
+    learned again, and the samples after it are dated by their stamps.
+    """
+    clock = SenderClock('joint state', 10.0, 0.1, 0.2)
+    refused, out = [], []
+    for k in range(600):
+        t_s = T0 + k * 1e-3
+        try:
+            out.append(clock.receive(t_s + 2.0, t_s + (late if k == 0 else 2e-4)))
+        except ImplausibleStamp:
+            refused.append(k)
+    assert refused == [1] and clock.relearns == 1
+    assert abs(clock.offset - (2.0 - 2e-4)) < 1e-4
+    assert np.max(np.abs(np.diff(out[3:]) - 1e-3)) < 1e-5
+
+
+def test_after_the_learning_second_two_agreeing_jumps_are_still_refused():
+    """Past LEARN_S a jump needs relearn_after (0.2 s) of agreement, as before."""
+    clock = SenderClock('joint state', 10.0, 0.1, 0.2)
+    feed(clock, 1.0, T0, 1500)
+    for k in range(2):
+        t_s = T0 + 1.5 + k * 1e-3
+        with pytest.raises(ImplausibleStamp, match=r'jumps 0\.500\d* s ahead'):
+            clock.receive(t_s + 1.5, t_s)
+    assert clock.relearns == 0
+
+
 @pytest.mark.parametrize('ppm', [100.0, -100.0])
 def test_a_drifting_sender_clock_is_followed(ppm):
     """100 s of a sender clock running 100 ppm fast or slow: 10 ms, followed, none refused."""
@@ -105,11 +137,15 @@ def test_a_stamp_that_jumps_is_refused_and_never_becomes_the_last():
 
 @pytest.mark.parametrize('step', [5.0, -5.0])
 def test_a_clock_step_is_relearned_after_relearn_after(step):
-    """An NTP step of the sender: refused for relearn_after (0.2 s), then the new offset."""
+    """
+    An NTP step of the sender: refused for relearn_after (0.2 s), then the new offset.
+
+    After the stream's learning second (in it, two refused in a row that agree re-learn).
+    """
     clock = SenderClock('joint state', 10.0, 0.1, 0.2)
-    feed(clock, 1.0, T0, 500)
+    feed(clock, 1.0, T0, 1500)
     refused, accepted = [], []
-    for k in range(500, 1000):
+    for k in range(1500, 2000):
         t_s = T0 + k * 1e-3
         try:
             accepted.append((t_s, clock.receive(t_s + 1.0 + step, t_s + 2e-4)))

@@ -20,7 +20,8 @@ from hybrid_force_controller.core.offline.scenario import ScenarioConfig
 from hybrid_force_controller.core.runtime.flight_recorder import FlightRecorder, MODES
 from hybrid_force_controller.core.runtime.inputs import JointSample
 from hybrid_force_controller.core.runtime.modes import Mode, TickOutput
-from hybrid_force_controller.ros.controller.flight_dumps import AFTER_S, FlightDumps
+from hybrid_force_controller.ros.controller.flight_dumps import (AFTER_S, FlightDumps,
+                                                                 WRITE_TIMEOUT_S)
 from hybrid_force_controller.tools import report
 from hybrid_force_controller.tools.bag_io import load_run, TOPIC_X
 from hybrid_force_controller.tools.flight_bench import _runtime, _stream
@@ -35,6 +36,9 @@ from rosbags.rosbag2.storage_mcap import McapReader
 
 MODEL = RobotModel.from_urdf()
 MCAP_MAGIC = b'\x89MCAP0\r\n'
+# join's wait here: the writer's own timeout, not the 10 s a node that ends waits (one CPU
+# shared with the serial group's cells took longer: s51d)
+JOIN = WRITE_TIMEOUT_S + 10.0
 GAP = (2.0, 2.3)  # the inputs stop for 0.3 s: safe mode after state_timeout (0.1 s)
 
 
@@ -259,7 +263,7 @@ def test_dumps_are_written_off_the_thread_at_most_one_per_interval(tmp_path):
     rec.trigger('safe mode (y)', 103.0)
     now[0] += 4.9
     dumps.poll(rec)  # within 5 s of the first: dropped, counted
-    dumps.join()
+    dumps.join(JOIN)
     assert dumps.dumps == 1 and dumps.skipped == 1 and not rec.requests
     assert len(lines) == 1, lines
     prefix = ('flight recorder: safe mode (x); stall (120 ms since the previous tick) at '
@@ -272,14 +276,14 @@ def test_dumps_are_written_off_the_thread_at_most_one_per_interval(tmp_path):
     now[0] += 0.2
     rec.trigger('contact lost in the force loop', 104.0)
     dumps.poll(rec)
-    dumps.join()
+    dumps.join(JOIN)
     assert dumps.dumps == 2 and len(lines) == 2 and lines[1].endswith('_contact_lost_in')
     dumps.max_dumps = 3  # the cap: a third dump, said to be the last, then none
     for t in (110.0, 120.0):
         now[0] += 5.0
         rec.trigger('stall (1 s)', t)
         dumps.poll(rec)
-    dumps.join()
+    dumps.join(JOIN)
     assert dumps.dumps == 3 and dumps.skipped == 2 and len(lines) == 4, lines
     assert lines[2].startswith('flight recorder: 3 dumps written, the last in this run')
 
@@ -296,11 +300,11 @@ def test_a_dump_holds_what_followed_its_trigger(tmp_path):
     rec.trigger('a force above 50 N', 100.2)
     now[0] += 0.49
     dumps.poll(rec)  # not yet: the request joined the pending dump
-    dumps.join()
+    dumps.join(JOIN)
     assert dumps.dumps == 0 and not lines and dumps.skipped == 0
     now[0] += 0.01
     dumps.poll(rec)
-    dumps.join()
+    dumps.join(JOIN)
     assert dumps.dumps == 1 and lines[0].startswith(
         'flight recorder: safe mode (x); a force above 50 N at t=100.099: '), lines
     t = load_run(lines[0].split(': ')[-1]).t
@@ -308,7 +312,7 @@ def test_a_dump_holds_what_followed_its_trigger(tmp_path):
     rec.trigger('stall (1 s)', 101.0)  # pending when the node ends: written with what is there
     now[0] += 5.0
     dumps.poll(rec)
-    dumps.join(recorder=rec)
+    dumps.join(JOIN, recorder=rec)
     assert dumps.dumps == 2 and lines[1].endswith('_stall_1_s'), lines
 
 
@@ -319,5 +323,5 @@ def test_a_dump_that_cannot_be_written_says_why(tmp_path):
     rec, dumps = filled(), FlightDumps(blocker / 'flight', MODEL, lines.append, after_s=0.0)
     rec.trigger('stall (1 s)', 5.0)
     dumps.poll(rec)
-    dumps.join()
+    dumps.join(JOIN)
     assert len(lines) == 1 and 'could not write' in lines[0], lines

@@ -9,6 +9,7 @@ import time
 
 from helpers import bounds, witness
 from helpers.ros import wait_for
+from helpers.watch import assert_clean_run
 import pytest
 
 TABLE = {'multiple': 5.0, 'measured': 'a test', 'bounds': {
@@ -104,3 +105,16 @@ def test_a_stall_of_the_machine_skips_a_figure_out_of_bounds_and_says_so(table):
 
 def _files():
     return sorted(witness._STATE['dir'].glob('cpu*.txt'))
+
+
+def _status(implausible: int, relearns: int, errors: int) -> dict:
+    return {'joint_state_clock_implausible': implausible, 'joint_state_clock_relearns': relearns,
+            'callback_errors_joint_states': errors, 'safe_mode_entries': 0}
+
+
+def test_a_clean_run_excuses_only_refused_stamps_that_each_ended_in_a_relearn():
+    """One stamp refused then relearnt (a late first sample) passes; anything more fails."""
+    assert_clean_run(_status(1, 1, 1))
+    for bad in (_status(2, 1, 2), _status(1, 0, 1), _status(1, 1, 2)):
+        with pytest.raises(AssertionError, match='inputs refused'):
+            assert_clean_run(bad)

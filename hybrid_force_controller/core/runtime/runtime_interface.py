@@ -82,6 +82,10 @@ class RuntimeInterface:
         """Return each input stream's measured clock offset, s (NaN before it is measured)."""
         return {k: math.nan if c.offset is None else c.offset for k, c in self._in.clocks.items()}
 
+    def clock_relearns(self) -> dict[str, int]:
+        """Return how often each input stream's clock offset was learned anew (sender_clock)."""
+        return {k: c.relearns for k, c in self._in.clocks.items()}
+
     def start_tare(self, tare: Tare) -> None:
         """
         Begin averaging the raw force reading (tare.py): the sensor's bias, for ``wrench_offset``.

@@ -113,8 +113,9 @@ def _status(implausible: int, relearns: int, errors: int) -> dict:
 
 
 def test_a_clean_run_excuses_only_refused_stamps_that_each_ended_in_a_relearn():
-    """One stamp refused then relearnt (a late first sample) passes; anything more fails."""
+    """Stamps refused, each then relearnt (a late first sample, a burst) pass; no other."""
     assert_clean_run(_status(1, 1, 1))
+    assert_clean_run(_status(3, 3, 3))
     for bad in (_status(2, 1, 2), _status(1, 0, 1), _status(1, 1, 2)):
         with pytest.raises(AssertionError, match='inputs refused'):
             assert_clean_run(bad)

@@ -102,6 +102,27 @@ def test_a_first_message_held_up_costs_one_refused_message(late):
     assert np.max(np.abs(np.diff(out[3:]) - 1e-3)) < 1e-5
 
 
+def test_a_backlog_delivered_in_a_burst_costs_one_refusal_per_state_timeout_of_it():
+    """
+    333 ms of samples held up, then delivered at once (10 us apart), then on time.
+
+    Through the burst each skew is 1 ms more than the one before: every ``tolerance`` (0.1 s)
+    of backlog one sample is refused and the next relearns, so 333 ms cost 3 refused samples,
+    each ended in a relearn (s51k refused 3 per stream of a clean cell), and the stream goes on.
+    """
+    clock = SenderClock('wrench', 10.0, 0.1, 0.2)
+    refused = []
+    for k in range(1000):
+        t_s = T0 + k * 1e-3
+        t_r = T0 + 0.333 + k * 1e-5 if k < 333 else t_s + 2e-4
+        try:
+            clock.receive(t_s - 2.0, t_r)
+        except ImplausibleStamp:
+            refused.append(k)
+    assert len(refused) == clock.relearns == 3 and max(refused) < 333, refused
+    assert abs(clock.offset - (-2.0 - 2e-4)) < 1e-3
+
+
 def test_after_the_learning_second_two_agreeing_jumps_are_still_refused():
     """Past LEARN_S a jump needs relearn_after (0.2 s) of agreement, as before."""
     clock = SenderClock('joint state', 10.0, 0.1, 0.2)

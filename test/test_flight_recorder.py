@@ -9,6 +9,7 @@ into a runtime (tools/flight_bench.py), as the control loop would tick it.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -244,6 +245,14 @@ def test_a_snapshot_never_returns_a_torn_row():
         assert np.array_equal(snap.t_wrench, k)
         for column in (snap.x_W, snap.f_d_W, snap.theta_hat, snap.tau):
             assert np.array_equal(column, np.repeat((k % 1000)[:, None], column.shape[1], 1))
+
+
+def test_of_copies_that_each_lost_rows_the_snapshot_keeps_the_fullest():
+    """Three raced copies, none within a tenth of the ring: the one that lost fewest rows."""
+    rec = FlightRecorder(2, 1, capacity=100)
+    copies = iter([dataclasses.replace(rec._copy(), dropped=d) for d in (60, 20, 40)])
+    rec._copy = lambda: next(copies)
+    assert rec.snapshot().dropped == 20
 
 
 def filled(rows: int = 100) -> FlightRecorder:

@@ -97,7 +97,7 @@ def test_a_first_message_held_up_costs_one_refused_message(late):
             out.append(clock.receive(t_s + 2.0, t_s + (late if k == 0 else 2e-4)))
         except ImplausibleStamp:
             refused.append(k)
-    assert refused == [1] and clock.relearns == 1
+    assert refused == [1] and clock.relearns == 1 == clock.startup_refusals
     assert abs(clock.offset - (2.0 - 2e-4)) < 1e-4
     assert np.max(np.abs(np.diff(out[3:]) - 1e-3)) < 1e-5
 
@@ -119,7 +119,8 @@ def test_a_backlog_delivered_in_a_burst_costs_one_refusal_per_state_timeout_of_i
             clock.receive(t_s - 2.0, t_r)
         except ImplausibleStamp:
             refused.append(k)
-    assert len(refused) == clock.relearns == 3 and max(refused) < 333, refused
+    assert len(refused) == clock.relearns == clock.startup_refusals == 3, refused
+    assert max(refused) < 333, refused
     assert abs(clock.offset - (-2.0 - 2e-4)) < 1e-3
 
 
@@ -154,6 +155,7 @@ def test_a_stamp_that_jumps_is_refused_and_never_becomes_the_last():
         clock.receive(T0 + 0.1 + 2.0 - 0.5, T0 + 0.1)
     t = clock.receive(T0 + 0.101 + 2.0, T0 + 0.101 + 2e-4)
     assert abs(t - (T0 + 0.1012)) < 1e-5  # the next good one as before (+ transport)
+    assert clock.startup_refusals == 2 and clock.relearns == 0  # in the stream's first second
 
 
 @pytest.mark.parametrize('step', [5.0, -5.0])
@@ -174,6 +176,7 @@ def test_a_clock_step_is_relearned_after_relearn_after(step):
             refused.append(t_s)
     assert refused[-1] - refused[0] == pytest.approx(0.2, abs=2e-3)  # locked out 0.2 s only
     assert clock.relearns == 1 and len(accepted) == 500 - len(refused)
+    assert clock.startup_refusals == 0  # after the first second: the sender's clock, not DDS
     assert np.max(np.abs(np.diff([t for _, t in accepted][10:]) - 1e-3)) < 1e-5
 
 

@@ -58,6 +58,21 @@ def test_tick_before_any_input_is_waiting(model):
     assert out.mode == 'approach' and np.all(np.isfinite(out.tau))
 
 
+def test_a_stale_input_before_the_first_effort_waits_and_is_no_safe_mode(model):
+    """The first joint state 0.33 s after the last wrench: waiting, no effort, no safe mode."""
+    rt = ControllerRuntime(model, build_params(model, {}))
+    rt.on_wrench('tool0', [0.0, 0.0, 0.0], 0.0)
+    rt.on_joint_state(list(model.joint_names), Q0, np.zeros(2), 0.333)
+    out = rt.tick(0.333)
+    assert out.mode == 'waiting' and out.tau is None and 'wrench older' in out.status
+    assert rt.counters['safe_mode_entries'] == 0
+    rt.on_wrench('tool0', [0.0, 0.0, 0.0], 0.334)
+    out = rt.tick(0.334)  # both fresh: it starts as from WAITING
+    assert out.mode == 'approach' and np.all(np.isfinite(out.tau))
+    rt.tick(0.6)  # once it has commanded, stale inputs are safe mode as before
+    assert rt.mode == 'safe' and rt.counters['safe_mode_entries'] == 1
+
+
 def test_reordered_and_extra_joint_names(model):
     (a, b), F = started_pair(model)
     q, qdot = Q0 + [1e-4, -1e-4], np.array([0.1, -0.3])  # (a step the velocities explain)

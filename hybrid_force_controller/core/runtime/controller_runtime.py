@@ -8,7 +8,10 @@ checked, plausible, their staleness, the force filter), the motion (motion.py: t
 the surface, the approach along n), the run's times (run_clock.py), the contact state and an
 explicit mode (:class:`Mode`):
 
-* ``WAITING``: no joint state or wrench yet (after start-up or a clock restart);
+* ``WAITING``: no joint state or wrench yet (after start-up or a clock restart), or, before
+  the first effort, one older than ``state_timeout``: a cell's first samples can come 333 ms
+  late (Fast DDS's first send to a reader that just joined), and the one stream's newest then
+  looked stale beside the other's first (docs/results.md section 29);
 * ``RUNNING``: the law of [1] with its force loop along n (control_law.py);
 * ``APPROACH``: contact lost: the normal reference moves into the surface (approach.py);
 * ``NO_SURFACE``: the approach travelled ``approach_limit`` without contact: hold, report;
@@ -151,6 +154,8 @@ class ControllerRuntime(RuntimeInterface):
         stale = self._in.stale(t)
         if stale:
             self._fresh_since = math.inf
+            if self._command.tau_last is None:  # nothing commanded yet: nothing to make safe
+                return self._output(None, Mode.WAITING, f'waiting for fresh inputs ({stale})')
             return self._safe(f_W, stale, t)
         self._fresh_since = min(self._fresh_since, t)
         if self.mode == Mode.SAFE and t - self._fresh_since < SAFE_DWELL_S:

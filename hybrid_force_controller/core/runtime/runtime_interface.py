@@ -86,6 +86,10 @@ class RuntimeInterface:
         """Return how often each input stream's clock offset was learned anew (sender_clock)."""
         return {k: c.relearns for k, c in self._in.clocks.items()}
 
+    def clock_startup_refusals(self) -> dict[str, int]:
+        """Return each input stream's stamps refused in its clock's first second (sender_clock)."""
+        return {k: c.startup_refusals for k, c in self._in.clocks.items()}
+
     def start_tare(self, tare: Tare) -> None:
         """
         Begin averaging the raw force reading (tare.py): the sensor's bias, for ``wrench_offset``.

@@ -103,6 +103,8 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                   **{f'{k}_clock_offset_s': f'{v:.6g}'
                      for k, v in runtime.clock_offsets().items()},
                   **{f'{k}_clock_relearns': v for k, v in runtime.clock_relearns().items()},
+                  **{f'{k}_clock_startup_refusals': v
+                     for k, v in runtime.clock_startup_refusals().items()},
                   **_recovery_values(runtime),
                   **{f'stiffness_{k}': (f'{v:.4g}' if isinstance(v, float) else v)
                      for k, v in runtime.stiffness_status()._asdict().items()},

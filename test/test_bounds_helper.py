@@ -87,9 +87,12 @@ def test_a_stall_of_the_machine_skips_a_figure_out_of_bounds_and_says_so(table):
             time.sleep(0.1)  # the stall itself, not a wait on a condition
         finally:
             os.kill(proc.pid, signal.SIGCONT)
-        wait_for(witness.stalls_text, 'the stall written down')
-        assert re.fullmatch(r'the machine stalled: CPU \d+ 1\d\d ms at -?0\.\d\d s into the test '
-                            r'\(fifo\)', witness.stalls_text()), witness.stalls_text()
+        # the machine's own stalls may be written down beside it (s52g: both CPUs 30 ms)
+        own = re.compile(rf'CPU {min(os.sched_getaffinity(0))} 1\d\d ms at -?\d+\.\d\d s into '
+                         r'the test \(fifo\)')
+        wait_for(lambda: own.search(witness.stalls_text()),
+                 lambda: f'the stall written down: {witness.stalls_text()!r}')
+        assert witness.stalls_text().startswith('the machine stalled: CPU ')
         bounds.check_bounds({'rms': 0.05}, test=test)
         with pytest.raises(pytest.skip.Exception, match=r'the machine stalled: CPU .*; out of '
                            r'bounds meanwhile: rms = 0.051 > 0.05'):

@@ -37,8 +37,8 @@ try:
 except OSError:
     how = 'normal'
 out = open(path, 'a', buffering=1)
+last = time.monotonic()  # before the header: a stop after the header is a gap
 out.write(f'# cpu {cpu} {how}\\n')
-last = time.monotonic()
 while True:
     time.sleep(0.005)
     now = time.monotonic()

@@ -108,10 +108,6 @@ def test_a_stall_of_the_machine_skips_a_figure_out_of_bounds_and_says_so(table):
         witness.stop()
 
 
-def _files():
-    return sorted(witness._STATE['dir'].glob('cpu*.txt'))
-
-
 def _status(implausible: int, startup: int, errors: int) -> dict:
     return {'joint_state_clock_implausible': implausible,
             'joint_state_clock_startup_refusals': startup,

@@ -21,7 +21,7 @@ from hybrid_force_controller.core.offline.scenario import ScenarioConfig
 from hybrid_force_controller.core.runtime.flight_recorder import FlightRecorder, MODES
 from hybrid_force_controller.core.runtime.inputs import JointSample
 from hybrid_force_controller.core.runtime.modes import Mode, TickOutput
-from hybrid_force_controller.ros.controller.flight_dumps import (AFTER_S, FlightDumps,
+from hybrid_force_controller.ros.controller.flight_dumps import (AFTER_S, FlightDumps, kind_of,
                                                                  WRITE_TIMEOUT_S)
 from hybrid_force_controller.tools import report
 from hybrid_force_controller.tools.bag_io import load_run, TOPIC_X
@@ -304,6 +304,44 @@ def test_dumps_are_written_off_the_thread_at_most_one_per_interval(tmp_path):
     assert lines[2].startswith('flight recorder: 3 dumps written, the last in this run')
 
 
+def test_a_request_that_joins_a_dump_puts_its_copy_off_within_the_ring():
+    """A request 0.8 s after the first: copied 0.5 s after it; one 1.4 s after: at 1.5 s."""
+    for joined, copied in ((0.8, 1.3), (1.4, 1.5)):
+        rec, now = filled(), [1000.0]
+        dumps = FlightDumps('/nonexistent', MODEL, print, clock=lambda: now[0])
+        rec.trigger('contact lost in the force loop', 100.0)
+        dumps.poll(rec)
+        now[0] += joined
+        rec.trigger('safe mode (x)', 100.9)
+        dumps.poll(rec)  # late: the node's thread was frozen with the loop
+        assert dumps.dumps == 0 and dumps._pending[2] == pytest.approx(1000.0 + copied)
+
+
+def test_the_interval_holds_for_each_kind_of_trigger(tmp_path):
+    """
+    A contact loss dumped does not hide a force or a safe mode 1 s later; its own kind waits.
+
+    (A freeze in an approach 0.4 s after a contact loss: the pressing after it was in no dump.)
+    """
+    rec, now, lines = filled(), [1000.0], []
+    dumps = FlightDumps(tmp_path / 'flight', MODEL, lines.append, clock=lambda: now[0],
+                        after_s=0.0)
+    assert [kind_of(r) for r in ('safe mode (x)', 'stall (300 ms since the previous tick)',
+                                 '|f| = 63 N above max_force = 50 N',
+                                 'contact lost in the force loop', 'other')] == [
+        'safe mode', 'stall', '|f|', 'contact lost', 'other']
+    for reason in ('contact lost in the force loop', '|f| = 63 N above max_force = 50 N',
+                   'contact lost in the force loop', 'safe mode (x)'):
+        rec.trigger(reason, 100.0)
+        dumps.poll(rec)
+        now[0] += 1.0
+    dumps.join(JOIN)
+    assert dumps.dumps == 3 and dumps.skipped == 1, lines
+    assert sorted(line.split(' at t=')[0] for line in lines) == [  # written in any order
+        'flight recorder: contact lost in the force loop', 'flight recorder: safe mode (x)',
+        'flight recorder: |f| = 63 N above max_force = 50 N']
+
+
 def test_a_dump_holds_what_followed_its_trigger(tmp_path):
     """The ring is copied AFTER_S after the first request: the ticks after the fault are in it."""
     rec, now, lines = filled(), [1000.0], []
@@ -314,8 +352,10 @@ def test_a_dump_holds_what_followed_its_trigger(tmp_path):
     for k in range(100, 400):  # the loop goes on: 0.3 s of ticks
         rec.record(100.0 + 1e-3 * k, sample(k), 100.0, tick_output(k))
     rec.trigger('a force above 50 N', 100.2)
+    now[0] += 0.1
+    dumps.poll(rec)  # the request joined the pending dump: copied 0.5 s after it
     now[0] += 0.49
-    dumps.poll(rec)  # not yet: the request joined the pending dump
+    dumps.poll(rec)
     dumps.join(JOIN)
     assert dumps.dumps == 0 and not lines and dumps.skipped == 0
     now[0] += 0.01

@@ -235,6 +235,23 @@ def test_fast_consistent_motion_and_a_jump_after_a_gap_are_accepted():
     j.sample(NAMES, s.q + [0.3, 0.0], [0.0, 0.0], 0.01 + 0.2001, s)  # after the gap
 
 
+def test_the_position_bound_grows_with_the_gap_as_the_acceleration_allows():
+    """
+    (J1) max_jump + max_accel dt^2 / 4: a fall onto the surface and its bounce, 80 ms skipped.
+
+    The velocity reversed (0.6 rad/s down, then up): the trapezoid says nothing moved, and the
+    fixed bound refused the state and every one after it for 2 state_timeout.
+    """
+    j, dt = joints(accel=30.0), 0.08  # 0.01 + 30 * 0.08^2 / 4 = 0.058 rad
+    last = j.sample(NAMES, Q0, [-0.6, 0.0], 0.0, None)
+    j.sample(NAMES, Q0 + [-0.057, 0.0], [0.6, 0.0], dt, last)
+    with pytest.raises(ImplausibleJointState, match='joint1 moved -0.059 in 80 ms'):
+        j.sample(NAMES, Q0 + [-0.059, 0.0], [0.6, 0.0], dt, last)
+    rest = j.sample(NAMES, Q0, [0.0, 0.0], 0.0, None)
+    with pytest.raises(ImplausibleJointState):  # 1 ms apart: 0.01 + 7.5e-6
+        j.sample(NAMES, Q0 + [-0.0101, 0.0], [0.0, 0.0], 1e-3, rest)
+
+
 @pytest.mark.parametrize('v', [15.1, -15.1, 100.0])
 def test_velocity_beyond_the_urdf_limit_times_the_margin_is_refused(v):
     j = joints()
@@ -404,8 +421,10 @@ def test_a_burst_of_jumped_states_longer_than_state_timeout_is_safe_mode_then_ad
 
     Refused: the inputs go stale after state_timeout (safe mode); 2 state_timeout after the
     last accepted state the new position is adopted, and the runtime leaves safe mode by itself.
+    (At 10 rad/s^2 no motion explains 0.2 rad within 0.2 s, (J1); at the default 1000 rad/s^2
+    one does after 28 ms, and the burst is then adopted as motion.)
     """
-    rt = ControllerRuntime(model, build_params(model))
+    rt = ControllerRuntime(model, build_params(model, {'max_joint_acceleration': 10.0}))
     kin = model.kinematics(Q0, np.zeros(2))
     F = kin.R_W_ee.T @ np.array([0.0, 1.0, 0.0])  # 1 N into the surface, in tool0
     modes, refused = [], []

@@ -147,8 +147,9 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
        0.0, 1e9),
     _S('max_joint_jump', 'double', 0.01,
        'Largest plausible position change of a joint beyond what the velocities of two '
-       'consecutive joint states explain, rad (m for a prismatic joint); a larger one is '
-       'refused (0: off).', 0.0, 1e3),
+       'consecutive joint states explain, rad (m for a prismatic joint), plus '
+       'max_joint_acceleration dt^2/4 across a gap dt; a larger one is refused (0: off).',
+       0.0, 1e3),
     _S('max_joint_acceleration', 'double', 1000.0,
        'Largest plausible change of a joint velocity between two joint states, per second '
        'between their stamps, rad/s^2 (m/s^2); a faster one is refused (0: off).', 0.0, 1e9),

@@ -142,13 +142,25 @@ class JointInput:
         """
         Refuse a step from ``last`` that the velocities do not explain, or a velocity jump.
 
-        Position: further than the trapezoidal rule plus max_jump; velocity: a change
-        beyond max_accel dt (a joint velocity discontinuity).
+        Position: further than the trapezoidal rule explains with the velocity changing at
+        most max_accel on the way, plus max_jump; velocity: a change beyond max_accel dt (a
+        joint velocity discontinuity)::
+
+            |q1 - q0 - (v0 + v1) dt / 2| <= max_jump + max_accel dt^2 / 4              (J1)
+
+        (the trapezoid's largest error for a velocity of slope at most max_accel). Between
+        two states 1 ms apart this adds 0.25 mrad at 1000 rad/s^2; across a gap it grows,
+        as an arm's motion can: behind a 300 ms freeze of the controller the arm fell onto the
+        surface and bounced (its velocity reversed), the first state after a skipped 80-100 ms
+        moved 0.01-0.03 rad more than its two velocities said, and the fixed bound refused it
+        and every state after it for 2 state_timeout: the hold ran on a stale state while the
+        arm was flung off the surface (docs/results.md section 30).
         """
         lq, lv = (self._last_lists if last is self._last else
                   (last.q.tolist(), last.qdot.tolist()))
         h = 0.5 * dt
-        bound = self.max_jump or math.inf
+        bound = ((self.max_jump + 0.25 * self.max_accel * dt * dt) if self.max_jump
+                 else math.inf)
         dv_max = self.max_accel * dt if self.max_accel else math.inf
         for i, (a, b, c, d) in enumerate(zip(qs, lq, vs, lv)):
             if abs(a - b - h * (c + d)) > bound:

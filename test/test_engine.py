@@ -55,6 +55,17 @@ def test_a_controller_stall_skips_ticks_and_the_plant_holds_the_command():
     assert np.all(np.array(held) == held[0])              # the plant kept the command
 
 
+def test_the_states_sent_during_a_controller_stall_drain_oldest_first_after_it():
+    """drain_per_ms 2: the 30 sent in a 30 ms stall reach it 0.5 ms apart; the newer queue."""
+    sched = Schedule(TimingModel(stalls=(Stall('controller', 0.1, 0.03),), drain_per_ms=2.0), 1)
+    ms = 1_000_000
+    arrivals = [sched.state_arrival(k * ms) for k in range(100, 135)]
+    assert arrivals[:30] == [130 * ms + k * ms // 2 for k in range(30)]  # oldest first
+    assert arrivals[30:] == [k * ms for k in range(130, 135)]  # the engine's channel: FIFO
+    assert Schedule(TimingModel(stalls=(Stall('controller', 0.1, 0.03),)), 1).state_arrival(
+        100 * ms) == 130 * ms  # inf: all at the stall's end, the newest read
+
+
 def test_a_plant_stall_publishes_nothing():
     e = engine(TimingModel(stalls=(Stall('plant', 0.100, 0.030),)), 0.2)
     stamps = []
@@ -135,7 +146,7 @@ def test_measured_model_has_multi_millisecond_stalls():
 
 @pytest.mark.parametrize('bad', [{'period': 0.0}, {'latency': -1e-3},
                                  {'stall_s': (2e-3, 1e-3)}, {'delay_steps': -1},
-                                 {'stalls': (Stall('sim', 0.0, 0.01),)}])
+                                 {'stalls': (Stall('sim', 0.0, 0.01),)}, {'drain_per_ms': 0.0}])
 def test_inconsistent_timing_is_rejected(bad):
     with pytest.raises(TimingError):
         TimingModel(**bad)

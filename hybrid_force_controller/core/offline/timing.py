@@ -49,6 +49,11 @@ class TimingModel:
         their log-uniform durations, s.
     stalls : scheduled stalls.
     seed : seed of every random draw.
+    drain_per_ms : how the states sent during a stall of the controller reach it: at this
+        many per ms after the stall, oldest first, the newer ones queued behind them (a
+        socket's backlog that the middleware's thread drains; over DDS the first state after
+        a 300 ms freeze was 300 ms old, and the inputs were 100 ms old again about 100 ms
+        later: about 3 per ms). ``inf``: only the newest, at the stall's end.
 
     """
 
@@ -64,12 +69,14 @@ class TimingModel:
     stall_s: tuple[float, float] = (1e-3, 30e-3)
     stalls: tuple[Stall, ...] = ()
     seed: int = 0
+    drain_per_ms: float = math.inf
 
     def __post_init__(self) -> None:
         values = (self.latency, self.latency_jitter, self.compute, self.tick_phase,
                   self.tick_jitter, self.stall_rate_hz, *self.stall_s)
         if not (self.period > 0.0 and all(math.isfinite(v) and v >= 0.0 for v in values)
-                and self.delay_steps >= 0 and 0.0 < self.stall_s[0] <= self.stall_s[1]):
+                and self.delay_steps >= 0 and 0.0 < self.stall_s[0] <= self.stall_s[1]
+                and self.drain_per_ms > 0.0):
             raise TimingError(f'invalid timing model: {self}')
         if any(s.who not in ('controller', 'plant') or s.duration < 0 for s in self.stalls):
             raise TimingError(f'invalid stalls: {self.stalls}')
@@ -115,6 +122,7 @@ class Schedule:
         self._last_tick = -1
         self._busy_until = -1
         self._pending: int | None = None
+        self._drained: dict[int, int] = {}  # a controller stall's end -> states queued at it
 
     def _draw_stalls(self, who: str, stream: int) -> list[tuple[int, int]]:
         m = self.model
@@ -150,7 +158,10 @@ class Schedule:
         """When a state published at ``t_pub`` is read by the controller."""
         t = t_pub + self._latency(0) + self.model.delay_steps * self.period_ns
         end = self._stall_end('controller', t)
-        return t if end is None else end
+        if end is None or not math.isfinite(self.model.drain_per_ms):
+            return t if end is None else end
+        k = self._drained[end] = self._drained.get(end, -1) + 1  # the k-th of its backlog
+        return end + _to_ns(k * 1e-3 / self.model.drain_per_ms)
 
     def command_arrival(self, t_tick: int) -> int:
         """When a command computed at ``t_tick`` reaches the plant."""

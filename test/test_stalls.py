@@ -11,10 +11,13 @@ freezes over DDS are in test_realtime_stalls.py; the exact figures come from
 from __future__ import annotations
 
 from helpers.offline import move_surface
+from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.offline.engine import Event
-from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
+from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
+from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.offline.timing import Stall, TimingModel
-from hybrid_force_controller.core.runtime.controller_runtime import Mode
+from hybrid_force_controller.core.runtime.catch_up import CatchUp, CAUGHT_UP_PERIODS
+from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, Mode
 from hybrid_force_controller.core.runtime.recovery import (Recovery, RecoveryConfig,
                                                            RecoveryConfigError, SETTLE_AFTER_S)
 from hybrid_force_controller.tools.recovery_figures import (recovery_figures, settle_time,
@@ -147,12 +150,75 @@ def test_a_freeze_during_an_approach_ends_on_the_surface():
     assert r.in_contact[r.t > release + 2.0].all()
 
 
+@pytest.mark.parametrize('drain', [1.5, 2.0, 3.0])
+def test_a_freeze_in_an_approach_with_its_backlog_replayed_ends_on_the_surface(drain):
+    """
+    As above, with the states sent during the freeze read oldest first, ``drain`` per ms.
+
+    (C1): nothing is sent until both inputs are current (the plant keeps its watchdog's zero
+    effort meanwhile), then the safe hold. Before, the hold ran on those old states with the
+    weight of the arm while the fall pressed it into the surface: flung off it, not found
+    again within 3 s, in each of these (docs/results.md section 30).
+    """
+    stalls = (Stall('controller', T_FREEZE + 0.4, 0.3),)
+    timing = TimingModel.ros_measured(seed=0, stalls=stalls, tick_on_state=True,
+                                      drain_per_ms=drain)
+    r = run_scenario(ScenarioConfig(theta_hat0_scale=0.5, duration=T_FREEZE + 4.0,
+                                    timing=timing, events=[Event(T_FREEZE,
+                                                                 move_surface(0.03))]))
+    release = T_FREEZE + 0.7
+    after = r.t > release
+    out = after & np.array([m != Mode.SAFE for m in r.mode])
+    t_out = r.t[np.argmax(out)]  # the hold's dwell done: out of safe mode
+    silent = after & (r.t < t_out - 0.06)  # the hold is 50 ms, its command 0-1 ms late
+    assert np.all(r.in_contact[r.t > release + 2.0])
+    assert t_out - release > 0.1 and not np.any(r.tau[silent])  # the plant's zero effort
+    f = r.f_true_W @ r.n_W
+    assert f[r.t > t_out + 0.1].max() < 20.0  # the fall's 53 N was before, at zero effort
+
+
 # ------------------------------------------------------------------ the bookkeeping
 def _calm(rec: Recovery, t0: float, t1: float, theta: np.ndarray, df: float = 0.0,
           e: float = 0.0, loop: bool = True) -> None:
     """Note ticks every 10 ms over [t0, t1) with the same errors and theta_hat."""
     for t in np.arange(t0, t1 - 1e-9, 0.01):
         rec.note(float(t), df, e, loop, theta)
+
+
+def test_after_a_stall_the_hold_starts_from_a_current_state_not_a_fresh_one(model):
+    """
+    Over DDS the first state after a 300 ms freeze was 92 ms old (fresh), the next current.
+
+    Nothing is sent at the first; the hold starts from the current one, the arm 3 cm (0.03
+    rad) further: its effort stays that of the weight. Latched on the old state, the hold
+    pulled the arm back to it at the effort limits (-100 N m, the flight log of the run).
+    """
+    rt, names = ControllerRuntime(model, build_params(model)), list(model.joint_names)
+    q0 = np.array(PAPER_Q0)
+    F = sensor_wrench_from_f_W(model.kinematics(q0, np.zeros(2)).R_W_ee, [0.0, -1.0, 0.0])
+
+    def tick(t: float, q: np.ndarray, age: float):
+        rt.on_joint_state(names, q, np.zeros(2), t - age, t)
+        rt.on_wrench('tool0', F * (1.0 + 1e-3 * np.sin(t * 1e3)), t - age, t)  # not frozen
+        return rt.tick(t)
+
+    for k in range(200):
+        before = tick(k * 1e-3, q0, 0.0)
+    out = tick(0.499, q0, 0.092)  # after a 300 ms freeze
+    assert out.mode == Mode.SAFE and out.tau is None and 'catching up' in out.status
+    out = tick(0.500, q0 + [0.03, 0.0], 0.0002)
+    assert out.mode == Mode.SAFE and np.abs(out.tau - before.tau).max() < 5.0, out.tau
+
+
+def test_a_catch_up_ends_once_each_input_was_current_since_it_began():
+    """(C1): two streams in different phases; a silent one stays silent until it ends."""
+    c = CatchUp()
+    c.begin(silent=True)
+    assert not c.done(0.050, 0.001, 0.005) and c.silent  # the wrench was current
+    c.begin(silent=False)  # stale again: begins anew, still silent
+    assert not c.done(0.002, 0.030, 0.005) and c.silent
+    assert c.done(0.030, 0.004, 0.005) and not c.active and not c.silent
+    assert CAUGHT_UP_PERIODS == 5
 
 
 def test_trusted_estimate_needs_a_calm_stretch_and_an_episode_holds_it():

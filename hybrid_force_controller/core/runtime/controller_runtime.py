@@ -21,7 +21,9 @@ explicit mode (:class:`Mode`):
   :data:`SAFE_DWELL_S`: after a stall the backlog of old messages alternates with new ones,
   and a law that ran for the few ms between them met a state 4.5 cm from the last and
   saturated, a command the hold then kept for 100 ms (real time: the paper's arm flung
-  20 cm off the surface, or pressed into it at 426-512 N).
+  20 cm off the surface, or pressed into it at 426-512 N). Fresh is not current: after stale
+  inputs, or a stall of the loop, safe mode lasts until each input is current again
+  (catch_up.py, (C1)); after a stall nothing is sent meanwhile.
 
 Entering ``RUNNING`` or ``APPROACH`` from ``WAITING`` or ``SAFE`` re-blends the reference from the
 arm's position and velocity (no effort jump; after ``SAFE`` the reference goes on from where it
@@ -45,6 +47,7 @@ import math
 
 import numpy as np
 
+from .catch_up import CatchUp, CAUGHT_UP_PERIODS
 from .contact import ContactDetector, in_contact
 from .effort import CommandStage, SafeHold
 from .inputs import InputError
@@ -99,6 +102,7 @@ class ControllerRuntime(RuntimeInterface):
         self.recovery = Recovery(len(params.law.theta_hat0), params.recovery)
         self._restarted = False  # a restart's episode begins at the next start
         self._fresh_since = math.inf  # since when both inputs are fresh (SAFE_DWELL_S)
+        self._catch_up = CatchUp()  # after stale inputs or a stall (catch_up.py, (C1))
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -151,12 +155,20 @@ class ControllerRuntime(RuntimeInterface):
         if self._in.state is None or self._in.wrench is None:
             return self._output(None, Mode.WAITING, 'waiting for joint states and wrench')
         f_W = self._in.filtered_force()
+        if self._catch_up.silent and not self._caught_up(t):
+            self._fresh_since = math.inf
+            return self._safe(f_W, f'catching up after a stall of {self.last_stall_s * 1e3:.0f} '
+                              'ms: nothing sent until the inputs are current', t, send=False)
         stale = self._in.stale(t)
         if stale:
             self._fresh_since = math.inf
             if self._command.tau_last is None:  # nothing commanded yet: nothing to make safe
                 return self._output(None, Mode.WAITING, f'waiting for fresh inputs ({stale})')
+            self._catch_up.begin(silent=False)
             return self._safe(f_W, stale, t)
+        if self._catch_up.active and not self._caught_up(t):  # fresh, not current: a backlog
+            self._fresh_since = math.inf
+            return self._safe(f_W, self.last_safe_reason, t)
         self._fresh_since = min(self._fresh_since, t)
         if self.mode == Mode.SAFE and t - self._fresh_since < SAFE_DWELL_S:
             return self._safe(f_W, self.last_safe_reason, t)  # fresh, not yet for long
@@ -305,6 +317,7 @@ class ControllerRuntime(RuntimeInterface):
         The estimate theta_hat is kept; the force integral and the rate limiter restart.
         """
         self.counters['clock_restarts'] += 1
+        self._catch_up.reset()
         self._in.reset()
         self._clock = RunClock()
         self.mode = Mode.WAITING
@@ -321,6 +334,7 @@ class ControllerRuntime(RuntimeInterface):
         effort blends from the last one out, which the hardware held (bumpless.py).
         """
         self.mode = Mode.WAITING
+        self._catch_up.reset()
         self._command.restart(blend=True)
         self._restarted = True
         self.orientation.reset()
@@ -342,7 +356,14 @@ class ControllerRuntime(RuntimeInterface):
         self.last_stall_s = gap
         if gap > self._params.runtime.state_timeout:
             self._begin('stall', t)
+            if self._command.tau_last is not None:
+                self._catch_up.begin(silent=True)
         return True
+
+    def _caught_up(self, t: float) -> bool:
+        """Say whether the catch-up (catch_up.py, (C1)) is over at ``t``."""
+        return self._catch_up.done(t - self._in.state.t, t - self._in.wrench.t,
+                                   CAUGHT_UP_PERIODS * self._period)
 
     def _begin(self, kind: str, t: float) -> None:
         """Open an episode; theta_hat takes the estimate it holds (recovery.py), if any."""
@@ -355,10 +376,18 @@ class ControllerRuntime(RuntimeInterface):
         self.recovery.note(t, abs(f_n - self.ctrl.f_d), math.sqrt(e.dot(e)),
                            touching and self.mode == Mode.RUNNING, self.ctrl.theta_hat)
 
-    def _safe(self, f_W: np.ndarray, status: str, t: float) -> TickOutput:
-        """Hold (effort.SafeHold): a smooth stop, impedance only while the joint state is fresh."""
+    def _safe(self, f_W: np.ndarray, status: str, t: float, send: bool = True) -> TickOutput:
+        """
+        Hold (effort.SafeHold): a smooth stop, impedance only while the joint state is fresh.
+
+        During a catch-up (C1) a state is fresh only when current: the hold latched on a state
+        92 ms old (fresh by state_timeout) pulled the arm back to it at the effort limits.
+        ``send`` False: enter (or stay in) safe mode, latched as usual, but send nothing.
+        """
         law, s = self._params.law, self._in.state
-        fresh = t - s.t <= self._params.runtime.state_timeout
+        age = t - s.t
+        fresh = age <= self._params.runtime.state_timeout and not (
+            self._catch_up.active and age > CAUGHT_UP_PERIODS * self._period)
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status
@@ -368,6 +397,8 @@ class ControllerRuntime(RuntimeInterface):
             self._clock.pause(s.t)  # the reference pauses (_start)
             self._motion.pause_path()
         self.mode = Mode.SAFE
+        if not send:
+            return self._output(None, Mode.SAFE, status, f_W)
         tau, p_W = self._hold.effort(t, s.q, s.qdot, self.ctrl.theta_hat, law.k_d, law.lambda1,
                                      law.k_null, fresh)
         return self._output(tau, Mode.SAFE, status, f_W, p_W)

@@ -154,6 +154,12 @@ class ForceLog:
             pairs = [(t, f) for t, f in zip(self.f_t, self.f_n) if t0 <= t <= t1]
         return np.array([t for t, _ in pairs]), np.array([f for _, f in pairs])
 
+    def command_after(self, t: float, k: int = 1) -> float:
+        """Return the force stamp when the ``k``-th command after stamp ``t`` came (inf: none)."""
+        with self.lock:
+            stamps = [s for s, _ in self.efforts if s > t]
+        return stamps[k - 1] if len(stamps) >= k else np.inf
+
     def recent(self, k: int) -> np.ndarray:
         """Return the last ``k`` forces (fewer before there are ``k``)."""
         with self.lock:

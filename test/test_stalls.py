@@ -16,7 +16,8 @@ from hybrid_force_controller.core.offline.engine import Event
 from hybrid_force_controller.core.offline.environment import sensor_wrench_from_f_W
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.offline.timing import Stall, TimingModel
-from hybrid_force_controller.core.runtime.catch_up import CatchUp, CAUGHT_UP_PERIODS
+from hybrid_force_controller.core.runtime.catch_up import (CatchUp, CAUGHT_UP_PERIODS,
+                                                           PLATEAU_PERIODS)
 from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, Mode
 from hybrid_force_controller.core.runtime.recovery import (Recovery, RecoveryConfig,
                                                            RecoveryConfigError, SETTLE_AFTER_S)
@@ -212,13 +213,31 @@ def test_after_a_stall_the_hold_starts_from_a_current_state_not_a_fresh_one(mode
 
 def test_a_catch_up_ends_once_each_input_was_current_since_it_began():
     """(C1): two streams in different phases; a silent one stays silent until it ends."""
-    c = CatchUp()
+    c, P = CatchUp(), 1e-3
     c.begin(silent=True)
-    assert not c.done(0.050, 0.001, 0.005) and c.silent  # the wrench was current
+    assert not c.done(0.0, 0.050, 0.001, P, 0.1) and c.silent  # the wrench was current
     c.begin(silent=False)  # stale again: begins anew, still silent
-    assert not c.done(0.002, 0.030, 0.005) and c.silent
-    assert c.done(0.030, 0.004, 0.005) and not c.active and not c.silent
+    assert not c.done(0.001, 0.002, 0.030, P, 0.1) and c.silent
+    assert c.done(0.002, 0.030, 0.004, P, 0.1) and not c.active and not c.silent
     assert CAUGHT_UP_PERIODS == 5
+
+
+def test_a_steady_lag_ends_a_catch_up_after_a_plateau_and_a_backlog_does_not():
+    """
+    (C1): 11.5 ms old for good (a lag learnt slowly): current after PLATEAU_PERIODS.
+
+    A backlog draining (1 ms younger each 0.7 ms), a stream that stopped (older each tick)
+    or one older than state_timeout is not.
+    """
+    P = 1e-3
+    for ages, over_at in (([0.0115] * 30, PLATEAU_PERIODS),
+                          ([0.09 - 3e-4 * k for k in range(30)], None),
+                          ([0.02 + 1e-3 * k for k in range(30)], None),
+                          ([0.12] * 30, None)):
+        c = CatchUp()
+        c.begin(silent=False)
+        over = [k for k, age in enumerate(ages) if c.done(k * P, age, 0.0, P, 0.1)]
+        assert (over[0] if over else None) == over_at, ages
 
 
 def test_trusted_estimate_needs_a_calm_stretch_and_an_episode_holds_it():

@@ -362,8 +362,8 @@ class ControllerRuntime(RuntimeInterface):
 
     def _caught_up(self, t: float) -> bool:
         """Say whether the catch-up (catch_up.py, (C1)) is over at ``t``."""
-        return self._catch_up.done(t - self._in.state.t, t - self._in.wrench.t,
-                                   CAUGHT_UP_PERIODS * self._period)
+        return self._catch_up.done(t, t - self._in.state.t, t - self._in.wrench.t, self._period,
+                                   self._params.runtime.state_timeout)
 
     def _begin(self, kind: str, t: float) -> None:
         """Open an episode; theta_hat takes the estimate it holds (recovery.py), if any."""

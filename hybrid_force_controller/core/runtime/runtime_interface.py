@@ -82,13 +82,14 @@ class RuntimeInterface:
         """Return each input stream's measured clock offset, s (NaN before it is measured)."""
         return {k: math.nan if c.offset is None else c.offset for k, c in self._in.clocks.items()}
 
-    def clock_relearns(self) -> dict[str, int]:
-        """Return how often each input stream's clock offset was learned anew (sender_clock)."""
-        return {k: c.relearns for k, c in self._in.clocks.items()}
+    def clock_counts(self, counter: str) -> dict[str, int]:
+        """
+        Return one counter of each input stream's sender clock (sender_clock.py).
 
-    def clock_startup_refusals(self) -> dict[str, int]:
-        """Return each input stream's stamps refused in its clock's first second (sender_clock)."""
-        return {k: c.startup_refusals for k, c in self._in.clocks.items()}
+        ``relearns``: how often its offset was learned anew; ``startup_refusals``: stamps
+        refused in its clock's first second.
+        """
+        return {k: getattr(c, counter) for k, c in self._in.clocks.items()}
 
     def start_tare(self, tare: Tare) -> None:
         """

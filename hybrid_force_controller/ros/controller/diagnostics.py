@@ -102,9 +102,8 @@ def controller_status(stamp, node_name: str, runtime: ControllerRuntime | None,
                   'theta_hat': ', '.join(f'{v:.4g}' for v in runtime.theta_hat),
                   **{f'{k}_clock_offset_s': f'{v:.6g}'
                      for k, v in runtime.clock_offsets().items()},
-                  **{f'{k}_clock_relearns': v for k, v in runtime.clock_relearns().items()},
-                  **{f'{k}_clock_startup_refusals': v
-                     for k, v in runtime.clock_startup_refusals().items()},
+                  **{f'{k}_clock_{c}': v for c in ('relearns', 'startup_refusals')
+                     for k, v in runtime.clock_counts(c).items()},
                   **_recovery_values(runtime),
                   **{f'stiffness_{k}': (f'{v:.4g}' if isinstance(v, float) else v)
                      for k, v in runtime.stiffness_status()._asdict().items()},

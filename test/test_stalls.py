@@ -18,7 +18,8 @@ from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario
 from hybrid_force_controller.core.offline.timing import Stall, TimingModel
 from hybrid_force_controller.core.runtime.catch_up import (CatchUp, CAUGHT_UP_PERIODS,
                                                            PLATEAU_PERIODS)
-from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime, Mode
+from hybrid_force_controller.core.runtime.controller_runtime import (ControllerRuntime, Mode,
+                                                                     SILENT_STALLS)
 from hybrid_force_controller.core.runtime.recovery import (Recovery, RecoveryConfig,
                                                            RecoveryConfigError, SETTLE_AFTER_S)
 from hybrid_force_controller.tools.recovery_figures import (recovery_figures, settle_time,
@@ -205,10 +206,23 @@ def test_after_a_stall_the_hold_starts_from_a_current_state_not_a_fresh_one(mode
 
     for k in range(200):
         before = tick(k * 1e-3, q0, 0.0)
-    out = tick(0.499, q0, 0.092)  # after a 300 ms freeze
+    out = tick(0.499, q0, 0.092)  # after a 300 ms freeze (over SILENT_STALLS state_timeout)
     assert out.mode == Mode.SAFE and out.tau is None and 'catching up' in out.status
     out = tick(0.500, q0 + [0.03, 0.0], 0.0002)
     assert out.mode == Mode.SAFE and np.abs(out.tau - before.tau).max() < 5.0, out.tau
+
+
+def test_a_stall_just_over_state_timeout_is_no_silence(model):
+    """150 ms (under SILENT_STALLS = 2 state_timeout): the hold goes on being sent at once."""
+    rt, names = ControllerRuntime(model, build_params(model)), list(model.joint_names)
+    q0 = np.array(PAPER_Q0)
+    F = sensor_wrench_from_f_W(model.kinematics(q0, np.zeros(2)).R_W_ee, [0.0, -1.0, 0.0])
+    for k in range(201):
+        t = 0.35 if k == 200 else k * 1e-3  # the last after a 151 ms stall
+        rt.on_joint_state(names, q0, np.zeros(2), t, t)
+        rt.on_wrench('tool0', F * (1.0 + 1e-3 * np.sin(k)), t, t)
+        out = rt.tick(t)
+    assert SILENT_STALLS == 2.0 and rt.last_stall_s > 0.15 and out.tau is not None
 
 
 def test_a_catch_up_ends_once_each_input_was_current_since_it_began():

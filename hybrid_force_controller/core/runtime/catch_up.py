@@ -16,14 +16,17 @@ again within 3 s; docs/results.md section 30).
 :class:`CatchUp` keeps the runtime's rule::
 
     a catch-up begins when the inputs go stale (safe mode), or after a stall of the loop
-    longer than state_timeout (silent); it ends once each input has been current at some
-    tick since it began: at most CAUGHT_UP_PERIODS periods old, or no younger than its
-    youngest for PLATEAU_PERIODS periods (its backlog is drained)             (C1)
+    longer than state_timeout (silent past 2 state_timeout); it ends once each input has
+    been current at some tick since it began: at most CAUGHT_UP_PERIODS periods old, or no
+    younger than its youngest for PLATEAU_PERIODS periods (its backlog is drained)   (C1)
 
-During a catch-up the runtime stays in safe mode and holds a fresh state as a stale one (no
-impedance, no new hold reference from it). During a *silent* one it sends nothing: the plant
-goes on as it did through the stall (its watchdog's zero effort or brakes, or the last command
-held), which is continuous with what it did, whatever the plant. Each stream is checked on
+Silent only past 2 ``state_timeout`` (SILENT_STALLS in controller_runtime.py): a stall of the
+loop just over a robot's command watchdog is one the watchdog may not yet have acted on, and
+silence then made it act (s53g: a 101 ms stall, the sim's 100 ms watchdog fired 12 ms into the
+silence). During a catch-up the runtime stays in safe mode and holds a fresh state as a stale
+one (no impedance, no new hold reference from it). During a *silent* one it sends nothing: the
+plant goes on as it did through the stall (its watchdog's zero effort or brakes, or the last
+command held), which is continuous with what it did, whatever the plant. Each stream is checked on
 its own: two 100 Hz streams a few ms apart in phase are never current at the same tick. Ages
 are on the controller's clock (sender_clock.py maps each stamp onto it, a constant transport
 delay taken out, but learnt slowly: a lag that changed with the fault stays in the ages for

@@ -72,6 +72,7 @@ __all__ = ['ControllerRuntime', 'InputError', 'Mode', 'TickOutput']
 _STATUS = {Mode.RUNNING: 'running', Mode.APPROACH: 'approaching the surface'}
 FIRST_TOUCH_S = 0.2  # with n_estimation: the reference's time starts after this long touching
 SAFE_DWELL_S = 0.05  # safe mode ends once both inputs have been fresh this long, s
+SILENT_STALLS = 2.0  # a stall this many state_timeout long: nothing sent until caught up (C1)
 _COUNTERS = ('ticks', 'joint_state_dropped', 'joint_state_implausible',
              'joint_state_clock_implausible', 'wrench_dropped', 'wrench_implausible',
              'wrench_clock_implausible', 'safe_mode_entries', 'control_errors',
@@ -354,10 +355,11 @@ class ControllerRuntime(RuntimeInterface):
             return False
         self.counters['stalls'] += 1
         self.last_stall_s = gap
-        if gap > self._params.runtime.state_timeout:
+        timeout = self._params.runtime.state_timeout
+        if gap > timeout:
             self._begin('stall', t)
-            if self._command.tau_last is not None:
-                self._catch_up.begin(silent=True)
+            if self._command.tau_last is not None:  # silent past a watchdog of that order
+                self._catch_up.begin(silent=gap > SILENT_STALLS * timeout)
         return True
 
     def _caught_up(self, t: float) -> bool:

@@ -169,7 +169,8 @@ class ControllerRuntime(RuntimeInterface):
             return self._safe(f_W, stale, t)
         if self._catch_up.active and not self._caught_up(t):  # fresh, not current: a backlog
             self._fresh_since = math.inf
-            return self._safe(f_W, self.last_safe_reason, t)
+            return self._safe(f_W, self.last_safe_reason if self.mode == Mode.SAFE else
+                              'catching up: inputs fresh but not yet current', t)
         self._fresh_since = min(self._fresh_since, t)
         if self.mode == Mode.SAFE and t - self._fresh_since < SAFE_DWELL_S:
             return self._safe(f_W, self.last_safe_reason, t)  # fresh, not yet for long

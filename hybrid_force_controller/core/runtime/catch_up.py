@@ -58,8 +58,12 @@ class CatchUp:
     def begin(self, silent: bool) -> None:
         """Begin a catch-up (or begin it again); ``silent`` stays until it ends."""
         self.active, self.silent = True, self.silent or silent
-        self._current = [False, False]
-        self._youngest = [math.inf, math.inf]
+        self._current[0] = self._current[1] = False  # in place: called each stale tick
+        self._youngest[0] = self._youngest[1] = math.inf
+
+    def holds_stale(self, age: float, period: float) -> bool:
+        """Say whether a state ``age`` s old counts as stale for the hold: not current."""
+        return self.active and age > CAUGHT_UP_PERIODS * period
 
     def reset(self) -> None:
         """Forget it (a restart, a clock restart: the runtime waits for inputs anew)."""

@@ -47,7 +47,7 @@ import math
 
 import numpy as np
 
-from .catch_up import CatchUp, CAUGHT_UP_PERIODS
+from .catch_up import CatchUp
 from .contact import ContactDetector, in_contact
 from .effort import CommandStage, SafeHold
 from .inputs import InputError
@@ -389,8 +389,8 @@ class ControllerRuntime(RuntimeInterface):
         """
         law, s = self._params.law, self._in.state
         age = t - s.t
-        fresh = age <= self._params.runtime.state_timeout and not (
-            self._catch_up.active and age > CAUGHT_UP_PERIODS * self._period)
+        fresh = (age <= self._params.runtime.state_timeout
+                 and not self._catch_up.holds_stale(age, self._period))
         if self.mode != Mode.SAFE:
             self.counters['safe_mode_entries'] += 1
             self.last_safe_reason = status

@@ -52,6 +52,7 @@ from sensor_msgs.msg import JointState
 from .telemetry import EffortOutput
 from ..common.cdr import read_joint_state, read_wrench_stamped
 from ..common.loop_timing import DelayStats, RateMeter
+from ..common.paced_timer import create_paced_timer
 from ..common.runner import make_executor
 from ..common.scheduling import name_this_thread, set_thread_scheduling
 from ...core.runtime.controller_runtime import ControllerRuntime, InputError
@@ -156,9 +157,10 @@ class ControlLoop:
         node.create_subscription(WrenchStamped, s.topics['wrench'],
                                  self._timed('wrench', self._on_wrench), s.qos_in, raw=True)
         if s.tick_mode == 'timer':
-            node.create_timer(s.period, self._timed('timer', self._on_timer))
+            create_paced_timer(node, s.period, self._timed('timer', self._on_timer))
         else:
-            node.create_timer(WATCHDOG_PERIODS * s.period, self._timed('timer', self._on_watchdog))
+            create_paced_timer(node, WATCHDOG_PERIODS * s.period,
+                               self._timed('timer', self._on_watchdog))
 
     # ------------------------------------------------------------------ the node's side
     def submit(self, params: Any) -> None:

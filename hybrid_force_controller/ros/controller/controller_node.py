@@ -48,6 +48,7 @@ from ..common.cell import cell_domains
 from ..common.model_source import expand_description, missing_description_hint
 from ..common.node_params import check_choice, check_cpus, CONTROLLER_NODE_SCHEMA, SENSOR_QOS
 from ..common.node_params import TICK_MODES
+from ..common.paced_timer import create_paced_timer
 from ..common.parameters import check_values, declare_schema, ParameterBinder
 from ..common.qos import DEFAULT_QOS, DESCRIPTION_QOS, sensor_in_qos
 from ..common.runner import EXECUTORS, print_help, run_node, wants_help
@@ -103,9 +104,9 @@ class ControllerNode(LifecycleNode):
         self._scheduling_reported = False
         self._node_scheduling: list[str] = []
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DEFAULT_QOS)
-        self.create_timer(nv['diagnostic_updater.period'],
-                          self._guarded('diagnostics', self._on_diagnostics))
-        self.create_timer(HOUSEKEEPING_S, self._guarded('housekeeping', self._housekeeping))
+        create_paced_timer(self, nv['diagnostic_updater.period'],
+                           self._guarded('diagnostics', self._on_diagnostics))
+        create_paced_timer(self, HOUSEKEEPING_S, self._guarded('housekeeping', self._housekeeping))
         if self._description_param() == '' and not nv['use_bundled_model']:
             self.create_subscription(String, TOPIC_DESCRIPTION,
                                      self._guarded('robot_description', self._on_description),

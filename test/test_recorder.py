@@ -97,3 +97,24 @@ def test_recorder_writes_what_was_published(context, tmp_path):
     assert [m.wrench.force.y for m in seen[TOPIC_CONTACT_WRENCH]] == [-1.0, -2.0]
     assert TYPESTORE.types[topics[TOPIC_X].msgtype].__msgtype__ == \
         'geometry_msgs/msg/PointStamped'
+
+
+def test_the_bag_begins_with_its_start_topics(context, tmp_path):
+    """``start_with``: other topics are dropped until each start topic came once; latched kept."""
+    from rclpy.serialization import serialize_message
+    from hybrid_force_controller.ros.programs.recorder_node import LATCHED_TOPICS
+    latched = next(t for t, _ in RECORD_TOPICS if any(t.endswith(s) for s in LATCHED_TOPICS))
+    recorder = BagRecorder(tmp_path / 'gated', context=context,
+                           start_with=(TOPIC_WRENCH, TOPIC_CONTACT_WRENCH))
+    raw = {t: serialize_message(make_msg(t, 0)) for t in COUNTS}
+    try:
+        assert recorder.record(TOPIC_X, raw[TOPIC_X]) is False          # before the bag began
+        assert recorder.record(TOPIC_WRENCH, raw[TOPIC_WRENCH]) is False  # one start topic of two
+        assert recorder.record(latched, b'\x00\x01\x00\x00\x00\x00\x00\x00') is True
+        assert recorder.record(TOPIC_CONTACT_WRENCH, raw[TOPIC_CONTACT_WRENCH]) is True
+        assert recorder.record(TOPIC_X, raw[TOPIC_X]) is True
+        assert recorder.record(TOPIC_WRENCH, raw[TOPIC_WRENCH]) is True
+        counts = recorder.writer.counts
+        assert {t: counts.get(t, 0) for t in COUNTS} == dict.fromkeys(COUNTS, 1)
+    finally:
+        recorder.destroy_node()

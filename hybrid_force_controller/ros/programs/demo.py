@@ -200,7 +200,8 @@ def _record(bag: Path, duration: float, lockstep: bool, procs, timeout: float,
     # user's path script talks to the cell through the gateway
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO,  # Ctrl-C: KeyboardInterrupt
                domain_id=cell_domains().node_domain)
-    rec = BagRecorder(bag, parameter_overrides=[Parameter('use_sim_time', value=lockstep)])
+    rec = BagRecorder(bag, start_with=LOOP_TOPICS,
+                      parameter_overrides=[Parameter('use_sim_time', value=lockstep)])
     executor = make_executor('events')
     executor.add_node(rec)
     task = None if operator is None else operator(rec)

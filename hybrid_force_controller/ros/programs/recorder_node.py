@@ -53,6 +53,12 @@ class BagRecorder(Node):
         Node name.
     depth : int
         Subscription queue depth (reliable, volatile): 1 s of the 1 kHz topics.
+    start_with : sequence of str
+        Topics (as in ``topics``) that begin the bag: until each has been received once, the
+        other topics' messages are dropped (the latched ones are always kept). A subscription
+        can match seconds after its neighbours on a busy machine; the demo starts its bag with
+        the loop's joint states and commands so every topic covers the same run. Default:
+        none (everything from the start).
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context=``, ``parameter_overrides=`` ...).
 
@@ -60,7 +66,8 @@ class BagRecorder(Node):
 
     def __init__(self, bag_path: str | Path,
                  topics: Sequence[tuple[str, str]] = tuple(RECORD_TOPICS),
-                 node_name: str = 'bag_recorder', depth: int = 1000, **kwargs) -> None:
+                 node_name: str = 'bag_recorder', depth: int = 1000,
+                 start_with: Sequence[str] = (), **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -70,14 +77,16 @@ class BagRecorder(Node):
             name = self.resolve_topic_name(relative(topic))
             resolved.append((name, msgtype))
         self.writer = BagWriter(bag_path, resolved)
+        self._awaited = {self.resolve_topic_name(relative(t)) for t in start_with}
+        self._latched = {name for name, _ in resolved
+                         if any(name.endswith(t) for t in LATCHED_TOPICS)}  # under any namespace
         # a Ctrl-C that lands while the node is still being built ends run_node before it has
         # the node to destroy (seen once under taskset -c 0: the bag had no metadata.yaml);
         # the bag is closed at exit whatever the path (close() is idempotent)
         atexit.register(self.writer.close)
         for name, msgtype in resolved:
-            latch = any(name.endswith(t) for t in LATCHED_TOPICS)  # under any namespace
             self.create_subscription(message_class(msgtype), name, partial(self.record, name),
-                                     latched if latch else qos, raw=True)
+                                     latched if name in self._latched else qos, raw=True)
         self.get_logger().info(f'recording {len(topics)} topics to {self.writer.path}')
 
     def record(self, topic: str, raw_cdr: bytes) -> bool:
@@ -87,9 +96,13 @@ class BagRecorder(Node):
         Returns
         -------
         bool
-            Whether the message was written.
+            Whether the message was written (False also before the bag began: ``start_with``).
 
         """
+        if self._awaited:
+            self._awaited.discard(topic)
+            if self._awaited and topic not in self._latched:
+                return False
         try:
             self.writer.write(topic, self.get_clock().now().nanoseconds, raw_cdr)
         except Exception as exc:  # noqa: BLE001 - log and keep the node alive

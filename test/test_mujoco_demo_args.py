@@ -9,7 +9,8 @@ from __future__ import annotations
 import argparse
 
 from hybrid_force_controller.core.offline.arm7 import panda_urdf_path
-from hybrid_force_controller.ros.programs.demo import _scenario_args, _tool_args, main
+from hybrid_force_controller.ros.programs.demo import (_orientation_args, _scenario_args,
+                                                       _tool_args, main, TILT_N_TIME_CONSTANT)
 from hybrid_force_controller.ros.programs.send_path import square_poses
 import numpy as np
 import pytest
@@ -81,3 +82,13 @@ def test_the_pad_is_the_sims_tool_shape_and_radius():
     args = argparse.Namespace(tool='disc', tool_radius=0.025)
     assert _tool_args(args) == ['-p', 'tool_shape:=disc', '-p', 'tool_radius:=0.025']
     assert _tool_args(argparse.Namespace(tool=None, tool_radius=None)) == []
+
+
+def test_a_tilted_pad_slows_the_normals_estimate():
+    """--tool-tilt: the controller's tool_tilt and n_time_constant 1 s; no tilt, neither."""
+    tilt = argparse.Namespace(orientation='normal', tool='disc', arm='panda', tool_tilt=0.15)
+    assert _orientation_args(tilt) == ['-p', 'orientation_mode:=normal', '-p', 'tool_tilt:=0.15',
+                                       '-p', 'n_time_constant:=1.0']
+    assert TILT_N_TIME_CONSTANT == 1.0
+    flat = argparse.Namespace(orientation=None, tool='disc', arm='panda', tool_tilt=0.0)
+    assert _orientation_args(flat) == ['-p', 'orientation_mode:=moment']

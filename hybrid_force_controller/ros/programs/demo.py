@@ -61,6 +61,7 @@ from ...core.config.groups import ORIENTATION_MODES
 #: physics:=mujoco: the tool's mass, kg (sim and controller, -p tool_mass): a 0.1 kg tool on the
 #: Panda's wrist sensor, which the controller compensates; the paper's arm keeps a massless tip
 TOOL_MASS = {'paper': 0.0, 'panda': 0.1}
+TILT_N_TIME_CONSTANT = 1.0  # s: n_hat's time constant under a tilted pad (_orientation_args)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -120,10 +121,20 @@ def _orientation(args: argparse.Namespace) -> str:
 
 
 def _orientation_args(args: argparse.Namespace) -> list[str]:
-    """Return the controller's ``-p orientation_mode/tool_tilt`` (none for the paper's free)."""
+    """
+    Return the controller's ``-p orientation_mode/tool_tilt`` (none for the paper's free).
+
+    A tilt also sets ``n_time_constant`` to :data:`TILT_N_TIME_CONSTANT` (a
+    ``--controller-param`` comes after it and wins): the tilted pad rides its rim, each
+    jitter of n_hat moves the rim into the part by ``tool_radius`` times its angle, and
+    0.1 s lets the jitter through (docs/results.md section 32).
+    """
     mode = _orientation(args)
     out = ['-p', f'orientation_mode:={mode}'] if mode != 'free' else []
-    return out + (['-p', f'tool_tilt:={float(args.tool_tilt)!r}'] if args.tool_tilt else [])
+    if not args.tool_tilt:
+        return out
+    return out + ['-p', f'tool_tilt:={float(args.tool_tilt)!r}',
+                  '-p', f'n_time_constant:={TILT_N_TIME_CONSTANT!r}']
 
 
 def _scenario_args(args: argparse.Namespace) -> tuple[list[str], float, float]:

@@ -61,7 +61,7 @@ OFFLINE_MODULES = {
     'test_report_path', 'test_safe_hold', 'test_seated_pad', 'test_singularity', 'test_tick_impl',
     'test_runtime', 'test_runtime_changes', 'test_stalls', 'test_stiffness',
     'test_stiffness_closed_loop', 'test_stiffness_guards', 'test_stiffness_loop',
-    'test_stiffness_tools', 'test_surface_shapes', 'test_tool_gravity',
+    'test_stiffness_tools', 'test_surface_shapes', 'test_thread_meter', 'test_tool_gravity',
     'test_tool_identification', 'test_orientation',
 }
 

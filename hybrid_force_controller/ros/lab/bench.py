@@ -132,11 +132,30 @@ def _one_run(cfg: dict[str, Any], domain: int, log_dir: Path) -> dict[str, Any]:
         ctrl = diag.wait_new(PKG, t1)
         figures = _figures(cfg, diag, cpu, sim0, sim1, t1 - t0, ctrl)
         figures['cpu_percent_per_thread'] = per_thread
+        figures.update(_switches({n: m.switches for n, m in threads.items()},
+                                 figures['commands_per_s_at_plant']))
         figures.update(_tracking(diag, t_stamp0, t_end, frozen, extra))
     finally:
         stop_nodes(procs)
         diag.close()
     return figures
+
+
+def _switches(switches: dict[str, dict[str, tuple[float, float]]],
+              commands_per_s: float) -> dict[str, Any]:
+    """
+    Each thread's context switches per s, and each process's per command at the plant.
+
+    ``{process}_wakeups_per_command``: the voluntary switches of all its threads (each a sleep
+    that a wake-up ends) per command the plant received: how many thread wake-ups one
+    period's messages cost the process (issue 33).
+    """
+    out: dict[str, Any] = {'switches_per_s_per_thread': switches}
+    for proc, threads in switches.items():
+        total = sum(v for v, _ in threads.values())
+        out[f'{proc}_wakeups_per_command'] = round(total / commands_per_s, 2) \
+            if commands_per_s > 0.0 else float('nan')
+    return out
 
 
 def _figures(cfg, diag, cpu, sim0, sim1, elapsed, ctrl) -> dict[str, Any]:

@@ -13,7 +13,8 @@ import sys
 import time
 from typing import Sequence
 
-__all__ = ['cpu_seconds', 'main', 'CpuMeter', 'thread_cpu_seconds', 'ThreadCpuMeter']
+__all__ = ['cpu_seconds', 'main', 'CpuMeter', 'thread_cpu_seconds', 'thread_switches',
+           'ThreadCpuMeter']
 
 _TICKS = os.sysconf('SC_CLK_TCK')
 
@@ -44,19 +45,51 @@ def thread_cpu_seconds(pid: int) -> dict[str, float]:
     return out
 
 
+def thread_switches(pid: int) -> dict[str, tuple[int, int]]:
+    """
+    Context switches of each thread of ``pid`` so far, ``(voluntary, involuntary)``, by name.
+
+    From ``/proc/<pid>/task/<tid>/status``. A voluntary switch is the thread going to sleep
+    (a futex wait, a poll): each one ends in a wake-up. Names as :func:`thread_cpu_seconds`.
+    """
+    out: dict[str, tuple[int, int]] = {}
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/status') as f:
+                fields = dict(line.split(':', 1) for line in f if ':' in line)
+        except OSError:  # the thread ended
+            continue
+        name = 'main' if int(tid) == pid else fields['Name'].strip()
+        v0, i0 = out.get(name, (0, 0))
+        out[name] = (v0 + int(fields['voluntary_ctxt_switches']),
+                     i0 + int(fields['nonvoluntary_ctxt_switches']))
+    return out
+
+
 class ThreadCpuMeter:
-    """CPU use of each thread (by name) of one process over a window, % of one core."""
+    """
+    CPU use of each thread (by name) of one process over a window, % of one core.
+
+    After :meth:`stop`, :attr:`switches` holds each thread's context switches per second
+    over the same window: ``{name: (voluntary, involuntary)}``.
+    """
 
     def __init__(self, pid: int) -> None:
         self.pid = pid
-        self._t0, self._cpu0 = 0.0, {}
+        self._t0, self._cpu0, self._sw0 = 0.0, {}, {}
+        self.switches: dict[str, tuple[float, float]] = {}
 
     def start(self) -> None:
+        self._sw0 = thread_switches(self.pid)
         self._t0, self._cpu0 = time.monotonic(), thread_cpu_seconds(self.pid)
 
     def stop(self) -> dict[str, float]:
         """``{thread name: percent of one core}`` since :meth:`start`."""
         wall, now = time.monotonic() - self._t0, thread_cpu_seconds(self.pid)
+        sw = thread_switches(self.pid)
+        self.switches = {n: (round((v - self._sw0.get(n, (0, 0))[0]) / wall, 1),
+                             round((i - self._sw0.get(n, (0, 0))[1]) / wall, 1))
+                         for n, (v, i) in sorted(sw.items())}
         return {n: round(100.0 * (v - self._cpu0.get(n, 0.0)) / wall, 2)
                 for n, v in sorted(now.items())}
 

@@ -22,10 +22,13 @@ from helpers.figures import current_test, report_figure
 from helpers.ros import domain_id, ROOT, Spun, wait_for, wait_future
 from helpers.watch import assert_clean_run, RealTimeRig
 from hybrid_force_controller.ros.common.cell import cell_domains, CELL_VAR
-from hybrid_force_controller.ros.common.gateway import fed_into_cell
+from hybrid_force_controller.ros.common.gateway import fed_into_cell, Gateway
 from hybrid_force_controller.ros.lab.join_stall import PROBES
 from hybrid_force_controller.ros.programs.launch import PROFILE_VAR
 import pytest
+import rclpy
+from rclpy.context import Context
+from std_msgs.msg import String
 
 GATEWAY = '_hfc_gateway'
 UNKNOWN = '_NODE_NAME_UNKNOWN_'  # rcl's name of a node not discovered yet
@@ -213,3 +216,42 @@ def test_the_run_is_clean(rig):
     assert_clean_run(rig.log.fresh_diag('hybrid_force_controller', alive=rig.procs),
                      rig.log.fresh_diag('sim', alive=rig.procs),
                      run=rig.log.statuses('hybrid_force_controller'))
+    for proc in (rig.sim, rig.ctrl):  # the gateway writes to the log of the node that began it
+        text = proc.log_path.read_text(errors='replace')
+        assert 'Fatal Python error' not in text, f'a crash in {proc.log_path.name}'
+
+
+def test_the_mirrors_carry_no_qos_event_handlers():
+    """
+    A mirror's reader and writer have no QoS event handler (gateway NO_EVENTS_*).
+
+    The Jazzy EventsExecutor segfaulted in the gateway as its mirrors started (21 of 45 demo
+    runs; a Python call without the GIL inside spin_once), and never without the handlers
+    (0 of 12). A gateway in this process mirrors a topic of a cell node here to a reader.
+    """
+    domains = cell_domains({'ROS_DOMAIN_ID': str(domain_id('gateway_mirror'))})
+    public, cell = domains.public, domains.cell
+    gateway = Gateway(domains)
+    ctx_cell, ctx_user = Context(), Context()
+    rclpy.init(context=ctx_cell, domain_id=cell)
+    rclpy.init(context=ctx_user, domain_id=public)
+    try:
+        writer = rclpy.create_node('writer', context=ctx_cell)
+        writer.create_publisher(String, 'mirrored', 10)
+        reader, watching = rclpy.create_node('reader', context=ctx_user), []
+
+        def mirrored() -> bool:
+            gateway.scan()
+            while gateway.cell_ops:
+                gateway.cell_ops.popleft()()
+            entry = gateway.out.get('/mirrored')
+            if entry is not None and not watching:  # watched once it is mirrored
+                watching.append(reader.create_subscription(String, 'mirrored', len, 10))
+            return entry is not None and entry[1] is not None
+        wait_for(mirrored, 'the gateway mirroring /mirrored to a reader', 30.0)
+        publisher, subscription, _ = gateway.out['/mirrored']
+        assert publisher.event_handlers == [] and subscription.event_handlers == []
+    finally:
+        gateway.close()
+        rclpy.try_shutdown(context=ctx_cell)
+        rclpy.try_shutdown(context=ctx_user)

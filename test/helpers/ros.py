@@ -54,7 +54,7 @@ _DOMAIN_OFFSETS = {
     'wrong_inputs': 22, 'path_ros': 23, 'task_interface': 24, 'contact_normal': 25,
     'surface_normal_ros': 26, 'flight_recorder': 27, 'gateway': 28,
     'mujoco_ros': 30, 'dds_profile': 31, 'fault_inputs': 32, 'orientation_ros': 33,
-    'paced_timer': 34,
+    'paced_timer': 34, 'gateway_mirror': 35,
 }
 
 

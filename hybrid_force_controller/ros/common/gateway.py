@@ -48,6 +48,7 @@ from typing import Any, Sequence
 
 import rclpy
 from rclpy.context import Context
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -65,6 +66,11 @@ STARTUP_S = 30.0  # a gateway that no node announced itself to ends after this l
 SERVICE_TIMEOUT_S = 10.0
 GATEWAY_NODE = '_hfc_gateway'
 NO_TYPE_SERVICE = [Parameter('start_type_description_service', value=False)]
+# No QoS event handlers on the mirrors: a mirror meets writers and readers of every QoS, and
+# the Jazzy EventsExecutor segfaulted dispatching such an event (a Python call without the GIL,
+# rclpy's default incompatible-QoS warning; docs/results.md section 34)
+NO_EVENTS_PUB = {'event_callbacks': PublisherEventCallbacks(use_default_callbacks=False)}
+NO_EVENTS_SUB = {'event_callbacks': SubscriptionEventCallbacks(use_default_callbacks=False)}
 _PENDING = object()  # a mirror's cell subscription asked of the cell's thread, not made yet
 #: the loop's own topics (their names in any namespace): never fed from outside, even before the
 #: cell's writer of them is discovered (one CPU: the sim's reader of the efforts was seen first,
@@ -275,7 +281,8 @@ class Gateway:
                 if msg_type is None:
                     continue
                 qos = mirror_qos(graph.pub_infos[topic])
-                self.out[topic] = [self.user.create_publisher(msg_type, topic, qos), None, qos]
+                self.out[topic] = [self.user.create_publisher(msg_type, topic, qos,
+                                                              **NO_EVENTS_PUB), None, qos]
             entry = self.out[topic]
             watched = entry[0].get_subscription_count() > 0
             if watched and entry[1] is None:
@@ -289,7 +296,7 @@ class Gateway:
         if entry[1] is _PENDING:
             pub = entry[0]
             entry[1] = self.cell.create_subscription(pub.msg_type, topic, pub.publish, entry[2],
-                                                     raw=True)
+                                                     raw=True, **NO_EVENTS_SUB)
 
     def _drop_cell_subscription(self, entry: list) -> None:
         """Stop a mirror's feed: its cell subscription destroyed on the cell's thread."""
@@ -311,12 +318,12 @@ class Gateway:
                 qos = mirror_qos(graph.sub_infos[topic])
                 made: list = []
                 self.cell_ops.append(lambda m=made, a=(msg_type, topic, qos):
-                                     m.append(self.cell.create_publisher(*a)))
+                                     m.append(self.cell.create_publisher(*a, **NO_EVENTS_PUB)))
                 self.into[topic] = (None, made, msg_type, qos)
             sub, made, msg_type, qos = self.into[topic]
             if sub is None and made:  # then, at a scan after, the user's side that feeds it
                 sub = self.user.create_subscription(msg_type, topic, made[0].publish, qos,
-                                                    raw=True)
+                                                    raw=True, **NO_EVENTS_SUB)
                 self.into[topic] = (sub, made, msg_type, qos)
 
     @staticmethod

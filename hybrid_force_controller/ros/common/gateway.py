@@ -66,9 +66,10 @@ STARTUP_S = 30.0  # a gateway that no node announced itself to ends after this l
 SERVICE_TIMEOUT_S = 10.0
 GATEWAY_NODE = '_hfc_gateway'
 NO_TYPE_SERVICE = [Parameter('start_type_description_service', value=False)]
-# No QoS event handlers on the mirrors: a mirror meets writers and readers of every QoS, and
-# the Jazzy EventsExecutor segfaulted dispatching such an event (a Python call without the GIL,
-# rclpy's default incompatible-QoS warning; docs/results.md section 34)
+# No QoS event handlers on the mirrors (rclpy's default incompatible-QoS and -type warnings):
+# a mirror meets writers and readers of every QoS, and with them the Jazzy EventsExecutor
+# segfaulted as the mirrors started (a Python call without the GIL in spin_once), without them
+# not once (docs/results.md section 34)
 NO_EVENTS_PUB = {'event_callbacks': PublisherEventCallbacks(use_default_callbacks=False)}
 NO_EVENTS_SUB = {'event_callbacks': SubscriptionEventCallbacks(use_default_callbacks=False)}
 _PENDING = object()  # a mirror's cell subscription asked of the cell's thread, not made yet

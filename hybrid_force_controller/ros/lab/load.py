@@ -11,7 +11,7 @@ import os
 import signal
 import sys
 import time
-from typing import Sequence
+from typing import Iterator, Sequence
 
 __all__ = ['cpu_seconds', 'main', 'CpuMeter', 'thread_cpu_seconds', 'thread_switches',
            'ThreadCpuMeter']
@@ -26,6 +26,16 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / _TICKS  # utime, stime (fields 14, 15)
 
 
+def _each_thread(pid: int, file: str) -> Iterator[tuple[bool, str]]:
+    """Yield ``(is the process's own thread, text of /proc/<pid>/task/<tid>/<file>)``."""
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{tid}/{file}') as f:
+                yield int(tid) == pid, f.read()
+        except OSError:  # the thread ended
+            continue
+
+
 def thread_cpu_seconds(pid: int) -> dict[str, float]:
     """
     User + system CPU time of each thread of ``pid`` so far, s, by thread name.
@@ -33,13 +43,9 @@ def thread_cpu_seconds(pid: int) -> dict[str, float]:
     The process's own thread is ``main``; threads sharing a name (the middleware's) are summed.
     """
     out: dict[str, float] = {}
-    for tid in os.listdir(f'/proc/{pid}/task'):
-        try:
-            with open(f'/proc/{pid}/task/{tid}/stat') as f:
-                head, tail = f.read().rsplit(')', 1)
-        except OSError:  # the thread ended
-            continue
-        name = 'main' if int(tid) == pid else head.split('(', 1)[1]
+    for own, text in _each_thread(pid, 'stat'):
+        head, tail = text.rsplit(')', 1)
+        name = 'main' if own else head.split('(', 1)[1]
         fields = tail.split()
         out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / _TICKS
     return out
@@ -53,13 +59,9 @@ def thread_switches(pid: int) -> dict[str, tuple[int, int]]:
     (a futex wait, a poll): each one ends in a wake-up. Names as :func:`thread_cpu_seconds`.
     """
     out: dict[str, tuple[int, int]] = {}
-    for tid in os.listdir(f'/proc/{pid}/task'):
-        try:
-            with open(f'/proc/{pid}/task/{tid}/status') as f:
-                fields = dict(line.split(':', 1) for line in f if ':' in line)
-        except OSError:  # the thread ended
-            continue
-        name = 'main' if int(tid) == pid else fields['Name'].strip()
+    for own, text in _each_thread(pid, 'status'):
+        fields = dict(line.split(':', 1) for line in text.splitlines() if ':' in line)
+        name = 'main' if own else fields['Name'].strip()
         v0, i0 = out.get(name, (0, 0))
         out[name] = (v0 + int(fields['voluntary_ctxt_switches']),
                      i0 + int(fields['nonvoluntary_ctxt_switches']))

@@ -99,20 +99,24 @@ def test_a_record_allocates_nothing():
     # what the recorder's own lines keep: this worker's other threads (a ROS test's executor)
     # may allocate meanwhile (s52h: 450 bytes kept in all over the 20000 records)
     own = [tracemalloc.Filter(True, '*flight_recorder.py')]
+    # the peak is the process's: another thread's transient allocation lands in it too (s55f:
+    # 1427 bytes once), so the recorder's is the least of three windows' peaks
     tracemalloc.start()
     try:
         snap0 = tracemalloc.take_snapshot().filter_traces(own)
-        before, _ = tracemalloc.get_traced_memory()
-        tracemalloc.reset_peak()
-        for k in range(2000, 22000):
-            rec.record(times[k], state, 0.0, outs[k % 2])
-            rec.note_hold(1e-4)
-        _, peak = tracemalloc.get_traced_memory()
+        peaks = []
+        for first, end in ((2000, 8000), (8000, 14000), (14000, 22000)):
+            before, _ = tracemalloc.get_traced_memory()
+            tracemalloc.reset_peak()
+            for k in range(first, end):
+                rec.record(times[k], state, 0.0, outs[k % 2])
+                rec.note_hold(1e-4)
+            peaks.append(tracemalloc.get_traced_memory()[1] - before)
         kept = tracemalloc.take_snapshot().filter_traces(own).compare_to(snap0, 'filename')
     finally:
         tracemalloc.stop()
     assert sum(d.size_diff for d in kept) < 256, kept  # not a byte per record
-    assert peak - before < 1024, peak - before
+    assert min(peaks) < 1024, peaks
     assert [rec.q.ctypes.data, rec.theta_hat.ctypes.data, rec.t.ctypes.data] == buffers
     assert rec.count == 22000 and not rec.requests
 

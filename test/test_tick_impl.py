@@ -144,10 +144,11 @@ class _Spy:
 def test_the_warm_up_calls_every_kernel_before_any_tick(panda, monkeypatch):
     """Numba finishes a kernel on its first call (ms): the law makes it when it is built."""
     tick = CompiledTick(7)
-    tick._k = spy = _Spy(tick._k)
+    tick._k, tick._s = spy, spy_s = _Spy(tick._k), _Spy(tick._s)
     tick.warm_up(panda)
     assert sorted(set(spy.calls)) == ['adapt', 'effort', 'task_reference']
     assert spy.calls.count('task_reference') == 2  # the 3-row and the 6-D task
+    assert spy_s.calls == ['law_front', 'law_back']  # the steady step (step_kernels.py)
     warmed = []
     monkeypatch.setattr(CompiledTick, 'warm_up', lambda self, model: warmed.append(model))
     HybridForceController(panda, build_params(panda, {}).law)
@@ -178,7 +179,47 @@ def test_no_python_runs_inside_a_kernel_call(panda, ticks, monkeypatch):
                            None if J_w is None else np.ones(3), N, q, 1.0)[1]
         tick.adapt(theta, np.eye(theta.size), Y_q, q, np.ones(3), 1.0, 0.1, 0.0, 1e-3,
                    theta - 1.0, theta + 1.0)
+    law = HybridForceController(panda, build_params(panda, {}).law)
+    d = law._d
+    tau = tick.law_step(panda, q, q, kin, (np.ones(3),) * 3, np.ones(3), d.G, (0.1, 0.0),
+                        d.gains, d.Gamma_inv, theta, 1e-3, True)[0]
+    assert tau is not None and np.all(np.isfinite(tau))
     assert calls == []
+
+
+@pytest.mark.parametrize('arm', ['paper', 'panda', 'panda_payload'])
+def test_steady_step_matches_the_reference(panda, arm):
+    """
+    The law's steady step in two kernels (step_kernels.py) is control_law.step's numpy.
+
+    Each step on a random state, both laws carried on from their own last one: tau, e, theta_hat
+    and h agree, with adaptation, frozen (``adapt`` False), without a new state (dt 0), with the
+    known part tau_0 (``payload``) and without it, and near a singular pose (damped, no
+    adaptation: the 2-link arm stretched out).
+    """
+    model = {'paper': RobotModel.from_urdf(), 'panda': panda,
+             'panda_payload': panda_model('payload')}[arm]
+    py, nb = (HybridForceController(model, build_params(
+        model, {'singular_sigma': 0.05, 'tick_impl': impl}).law)
+        for impl in ('python', 'compiled'))
+    q0 = np.array(PANDA_Q0) if model.n == 7 else np.array([0.4, 1.1])
+    rng = np.random.default_rng(7)
+    damped = []
+    for k in range(40):
+        q = q0 + 0.2 * rng.normal(size=model.n)
+        if model.n == 2 and k % 4 == 3:
+            q[1] = 1e-3  # stretched out: J near singular, the inverse damped
+        qdot, f_W = rng.normal(size=model.n), rng.normal(size=3) * 5.0
+        ref = tuple(rng.normal(size=3) * s for s in (0.5, 0.1, 0.1))
+        dt, adapt = (1e-3, 0.0)[k % 5 == 4], k % 7 != 6
+        a, b = (law.step(q, qdot, f_W, ref, dt, adapt=adapt, r_bias=(0.01, -0.02))
+                for law in (py, nb))
+        damped.append(nb.damped)
+        assert py.damped == nb.damped
+        for x, y in ((a.tau, b.tau), (a.e, b.e), (py.theta_hat, nb.theta_hat)):
+            assert close(x, y), (k, float(np.abs(x - y).max()))
+        assert abs(py.h - nb.h) <= REL * max(abs(py.h), 1.0)
+    assert any(damped) == (model.n == 2) and not all(damped)
 
 
 def test_tick_impl_is_validated():
@@ -222,9 +263,13 @@ def assert_same_run(py, nb) -> None:
 
 
 def test_paper_scenario_alike():
+    """And the compiled law's ticks ran its steady step (step_kernels.py) in the force loop."""
     model = RobotModel.from_urdf()
-    assert_same_run(*_both(lambda impl: run_scenario(ScenarioConfig(
-        duration=6.0, theta_hat0_scale=0.5, overrides={'tick_impl': impl}), model)))
+    py, nb = _both(lambda impl: run_scenario(ScenarioConfig(
+        duration=6.0, theta_hat0_scale=0.5, overrides={'tick_impl': impl}), model))
+    assert_same_run(py, nb)
+    steady = nb.runtime.ctrl._tick.steady_steps
+    assert steady >= 0.95 * nb.ticks and py.runtime.ctrl._tick.steady_steps == 0
 
 
 def test_panda_alike(panda):

@@ -343,6 +343,8 @@ class HybridForceController:
         g, model = self._d.gains, self.model
         kin = model.kinematics(q, qdot) if kin is None else kin
         f = f_W[model.task_index]
+        if self._tick.fused and rot is None and approach is None and self._moving is None:
+            return self._steady_step(q, qdot, f, ref, dt, kin, in_contact, r_bias, adapt)
         r, rdot, df_n, r_n, rdot_n = self.reference_velocity(kin, ref, f, approach, r_bias)
         e = kin.xdot - r
         J, Jdot = (kin.J_ee, kin.Jdot_ee) if rot is None else (kin.J6, kin.Jdot6)
@@ -370,6 +372,26 @@ class HybridForceController:
                             in_contact and approach is None)
         return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
 
+    def _steady_step(self, q: np.ndarray, qdot: np.ndarray, f: np.ndarray, ref: Reference,
+                     dt: float, kin: TaskKinematics, in_contact: bool,
+                     r_bias: tuple[float, float], adapt: bool) -> ControlOutput:
+        """:meth:`step` in the force loop along the gains' n, in two kernels (tick_impl.py)."""
+        d = self._d
+        f_n = float(d.n.dot(f))
+        r_n, rdot_n = self.force_loop_r_n(f_n)
+        r_n, rdot_n = r_n + r_bias[0], rdot_n + r_bias[1]
+        tau, e, theta, self.damped = self._tick.law_step(
+            self.model, q, qdot, kin, ref, f, d.G, (r_n, rdot_n), d.gains, d.Gamma_inv,
+            self.theta_hat, dt, adapt)
+        self.e_w = None
+        if tau is None:
+            raise ControlError('control law produced a non-finite effort')
+        if dt > 0.0:
+            if theta is not None:
+                self.theta_hat = theta if self._project is None else self._project(theta)
+            self._integrate_h(f_n - self.f_d, dt, in_contact)
+        return ControlOutput(tau, e, kin, self.theta_hat, self.h, r_n, rdot_n)
+
     def _integrate(self, Y_q: np.ndarray, s: np.ndarray | None, e: np.ndarray, df_n: float,
                    dt: float, force_loop: bool) -> None:
         """
@@ -385,6 +407,10 @@ class HybridForceController:
                                      g.adapt_error_limit, g.adapt_dead_zone, dt, g.theta_min,
                                      g.theta_max)
             self.theta_hat = theta if self._project is None else self._project(theta)
+        self._integrate_h(df_n, dt, force_loop)
+
+    def _integrate_h(self, df_n: float, dt: float, force_loop: bool) -> None:
+        """Integrate h, eq. (20): frozen out of the force loop, never a retreat (h > 0) there."""
         if force_loop:
             limit = self._k.h_limit
             self.h = min(max(self.h + df_n * dt, -limit), limit)

@@ -10,6 +10,7 @@ kernel fills it. No state: the law holds it.
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 from pathlib import Path
@@ -33,6 +34,8 @@ class PythonTick:
     """The numpy reference (task_inverse.py, linalg.py, adaptation.py)."""
 
     name = 'python'
+    fused = False  # no law_step: control_law.step runs its numpy steps
+    steady_steps = 0  # the steps law_step ran (CompiledTick)
 
     def __init__(self, n_joints: int) -> None:
         self._eye_n = np.eye(n_joints)
@@ -80,16 +83,23 @@ class PythonTick:
 
 
 class CompiledTick(PythonTick):
-    """The same three steps in kernels.py (numba); raises ImportError without numba."""
+    """
+    The same three steps in kernels.py (numba); raises ImportError without numba.
+
+    And the law's steady step in two calls (:meth:`law_step`, step_kernels.py).
+    """
 
     name = 'compiled'
+    fused = True
 
     def __init__(self, n_joints: int) -> None:
         super().__init__(n_joints)
         t0 = time.perf_counter()
         self._k = importlib.import_module(f'{__package__}.kernels')
-        compiled = any(f.stats.cache_misses for f in (self._k.task_reference, self._k.effort,
-                                                      self._k.adapt))
+        self._s = importlib.import_module(f'{__package__}.step_kernels')
+        compiled = any(f.stats.cache_misses for f in (
+            self._k.task_reference, self._k.effort, self._k.adapt, self._s.law_front,
+            self._s.law_back))
         self.note = (f"tick_impl compiled: numba kernels {'compiled' if compiled else 'loaded'}"
                      f' in {time.perf_counter() - t0:.2f} s')
 
@@ -116,6 +126,11 @@ class CompiledTick(PythonTick):
                             None if J_w is None else np.zeros(3), N, q, 0.0)
         self.adapt(theta, np.eye(theta.size), Y_q, q, np.zeros(3), 1.0, 0.1, 0.0, 1e-3,
                    theta - 1.0, theta + 1.0)
+        m = kin.J_ee.shape[0]
+        z3 = np.zeros(3)
+        with contextlib.suppress(np.linalg.LinAlgError):  # singular at q = 0: it ran all the same
+            self.law_step(model, q, q, kin, (z3, z3, z3), z3[:m], np.zeros((2 * m, 2 * m + 11)),
+                          (0.0, 0.0), _WarmGains(theta), np.eye(theta.size), theta, 1e-3, True)
 
     def joint_reference(self, M_inv: Callable[[], np.ndarray], J: np.ndarray, Jdot: np.ndarray,
                         r: np.ndarray, rdot: np.ndarray, sigma0: float) -> tuple:
@@ -152,10 +167,49 @@ class CompiledTick(PythonTick):
                       out)
         return out
 
+    def law_step(self, model, q: np.ndarray, qdot: np.ndarray, kin, ref, f: np.ndarray,
+                 G: np.ndarray, r_n_rdot_n: tuple[float, float], gains, Gamma_inv: np.ndarray,
+                 theta_hat: np.ndarray, dt: float, adapt: bool) -> tuple:
+        """
+        Run the law's steady step (step_kernels.py); return ``tau, e, theta, damped``.
+
+        ``tau`` None: not finite; ``theta`` None: nothing adapted (``dt`` 0, ``adapt`` False, or
+        a damped inverse). Raises LinAlgError at a singular matrix.
+        """
+        self.steady_steps += 1
+        J = kin.J_ee
+        m, n = J.shape
+        rr, e, J_inv = np.empty(2 * m), np.empty(m), np.empty((n, m))
+        qdot_r, qddot_r, V = np.empty(n), np.empty(n), np.empty((2, n))
+        N = np.empty((n, n)) if n > m else _EMPTY2
+        state = self._s.law_front(G, kin.x, kin.xdot, *ref, *r_n_rdot_n, J, kin.Jdot_ee,
+                                  model.inertia_inverse(q) if n > m else _EMPTY2,
+                                  gains.singular_sigma, qdot, rr, e, J_inv, N, qdot_r, qddot_r, V)
+        if state < 0:
+            raise np.linalg.LinAlgError('singular matrix (a singular pose)')
+        P, known = model.regressor_map
+        tau, theta = np.empty(n), np.empty(theta_hat.size)
+        dt_adapt = dt if adapt and state == 0 else 0.0
+        finite = self._s.law_back(*model.regressor_pair(q, V, qddot_r), P, known, theta_hat, J,
+                                  f, gains.k_d, e, N, qdot, qdot_r, gains.k_null, Gamma_inv,
+                                  gains.k_a, gains.adapt_error_limit, gains.adapt_dead_zone,
+                                  dt_adapt, gains.theta_min, gains.theta_max, tau, theta)
+        return (tau if finite else None), e, (theta if dt_adapt > 0.0 else None), state == 1
+
+
+class _WarmGains:
+    """The gains law_step reads, for warm_up (any values run every kernel)."""
+
+    def __init__(self, theta: np.ndarray) -> None:
+        self.singular_sigma, self.k_d, self.k_null, self.k_a = 0.1, 1.0, 0.0, 1.0
+        self.adapt_error_limit, self.adapt_dead_zone = 0.1, 0.0
+        self.theta_min, self.theta_max = theta - 1.0, theta + 1.0
+
 
 def kernels_cached() -> bool:
-    """Say whether kernels.py's compiled code looks cached beside it (else: a first compile)."""
-    return any((Path(__file__).parent / '__pycache__').glob('kernels.*.nbi'))
+    """Say whether the kernels' compiled code looks cached beside them (else: a first compile)."""
+    cache = Path(__file__).parent / '__pycache__'
+    return all(any(cache.glob(f'{name}.*.nbi')) for name in ('kernels', 'step_kernels'))
 
 
 def make_tick(impl: str, n_joints: int) -> PythonTick:

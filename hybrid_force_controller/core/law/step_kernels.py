@@ -1,0 +1,96 @@
+r"""
+The law's steady step in two compiled calls around pinocchio's regressor (``tick_impl: compiled``).
+
+The law's step in the force loop along the gains' n, the task translational (no approach, no
+moving normal, no 6-D task: every tick of the paper's scenario, and the Panda's with n given),
+is these two kernels and the two calls of pinocchio's regressor between them
+(``RobotModel.regressor_pair``), where control_law.step runs about twenty numpy calls through
+kernels.py's three. Each is the arithmetic its Python reference does, formula for formula:
+
+- :func:`law_front`: eqs. (8) and (11), ``[r; rdot] = G z`` (control_law._linear_part), the error
+  ``e = xdot - r``, then kernels.task_reference (eqs. (35)-(37)), and the two velocities of the
+  regressor's polarisation (robot_model.regressor_affine, (R2)): ``v + w/8`` and
+  ``sqrt2 (v - w/8)`` with ``v = qdot``, ``w = qdot_r``;
+- :func:`law_back`: ``Y = (2 R1 - R2) P`` and ``tau_0`` ((R2)), eq. (5) in joint space
+  (``tau = Y theta_hat + tau_0 + J^T (f - k_d e) - k_null N^T N s``, ``s = qdot - qdot_r``,
+  kernels.effort) and, when asked, eq. (26)'s next theta_hat (kernels.adapt).
+
+The sums run in another order than numpy's, so the two agree to rounding (test_tick_impl
+compares them on the paper's scenario, the Panda, a moving normal, a path and a fault episode).
+Explicit signatures: compiled at import (``cache=True``), never in a tick; ``nogil``.
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+from numba import boolean, float64, int64
+import numpy as np
+
+from .kernels import _OPTS, adapt, effort, task_reference
+
+__all__ = ['law_back', 'law_front']
+
+_A2, _A1 = float64[:, :], float64[:]
+_SQRT2 = math.sqrt(2.0)
+
+
+@nb.njit(int64(_A2, _A1, _A1, _A1, _A1, _A1, float64, float64, _A2, _A2, _A2, float64, _A1,
+               _A1, _A1, _A2, _A2, _A1, _A1, _A2), **_OPTS)
+def law_front(G, x, xdot, x_d, xdot_d, xddot_d, r_n, rdot_n, J, Jdot, M_inv, sigma0, qdot,
+              rr, e, J_inv, N, qdot_r, qddot_r, V):
+    """
+    Fill ``[r; rdot]``, e, ``J^#``, N, ``qdot_r``, ``qddot_r`` and the regressor's velocities V.
+
+    Returns task_reference's state (1 damped, 0 not, -1 singular). ``z = (x, xdot, x_d,
+    xdot_d, xddot_d, r_n, rdot_n)`` as control_law._linear_part orders it.
+    """
+    m = x.shape[0]
+    z = np.empty(2 * m + 11)
+    z[:m], z[m:2 * m] = x, xdot
+    z[2 * m:2 * m + 3], z[2 * m + 3:2 * m + 6], z[2 * m + 6:2 * m + 9] = x_d, xdot_d, xddot_d
+    z[2 * m + 9], z[2 * m + 10] = r_n, rdot_n
+    for i in range(2 * m):
+        acc = 0.0
+        for k in range(2 * m + 11):
+            acc += G[i, k] * z[k]
+        rr[i] = acc
+    for i in range(m):
+        e[i] = xdot[i] - rr[i]
+    state = task_reference(M_inv, J, Jdot, rr[:m], rr[m:], sigma0, J_inv, N, qdot_r, qddot_r)
+    for i in range(qdot.shape[0]):
+        V[0, i] = qdot[i] + 0.125 * qdot_r[i]
+        V[1, i] = _SQRT2 * qdot[i] + (-_SQRT2 / 8.0) * qdot_r[i]
+    return state
+
+
+@nb.njit(boolean(_A2, _A2, _A2, boolean, _A1, _A2, _A1, float64, _A1, _A2, _A1, _A1, float64,
+                 _A2, float64, float64, float64, float64, _A1, _A1, _A1, _A1), **_OPTS)
+def law_back(R1, R2, P, known, theta_hat, J_ee, f, k_d, e, N, qdot, qdot_r, k_null, Gamma_inv,
+             k_a, error_limit, dead_zone, dt, lo, hi, tau, theta_out):
+    """
+    Fill ``tau`` (eq. 5) and, with ``dt`` > 0, ``theta_out`` (eq. 26); return tau's finiteness.
+
+    ``P`` maps the regressor's columns to theta (``known``: its last column is the known part
+    pi_0, giving tau_0). ``dt`` 0 leaves ``theta_out`` as it is.
+    """
+    n, p = R1.shape[0], theta_hat.shape[0]
+    Y = np.zeros((n, P.shape[1]))
+    for i in range(n):
+        for k in range(R1.shape[1]):
+            r = 2.0 * R1[i, k] - R2[i, k]
+            if r != 0.0:
+                for c in range(P.shape[1]):
+                    Y[i, c] += r * P[k, c]
+    Y_q = Y[:, :p]
+    tau_0 = Y[:, p] if known else Y[:0, 0]
+    m = f.shape[0]
+    f_kde = np.empty(m)
+    for k in range(m):
+        f_kde[k] = f[k] - k_d * e[k]
+    s = qdot - qdot_r
+    finite = effort(Y_q, theta_hat, tau_0, J_ee, f_kde, Y[:0, :], Y[0, :0], N, s, k_null, tau)
+    if finite and dt > 0.0:
+        adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt, lo, hi,
+              theta_out)
+    return finite

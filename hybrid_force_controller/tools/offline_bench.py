@@ -17,6 +17,9 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
   1.1);
 - ``orientation_tick_7dof_us_median_free`` / ``_moment`` and ``orientation_tick_ratio``: the
   same paired replay, ``orientation_mode`` free against moment (the 6-D task; issue 32);
+- ``idle_tick_{paper,7dof}_us_median_hot`` / ``_idle`` and ``_idle_over_hot``: one recorded
+  stream replayed into a runtime, its states back to back and then 0.9 ms asleep before each
+  (a 1 kHz node's idle between messages, which leaves the tick's caches cold);
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline;
 - with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
   tick dearer): its controller step timed in a subprocess, alternating three times with
@@ -35,6 +38,7 @@ import time
 import numpy as np
 
 from ..core.config.params import build_params
+from ..core.model.robot_model import RobotModel
 from ..core.offline.arm7 import panda_model, panda_scenario, square_path_event
 from ..core.offline.scenario import run_scenario, ScenarioConfig
 from ..core.runtime.controller_runtime import ControllerRuntime
@@ -171,6 +175,61 @@ def _paired_ticks(model, runtimes: list, stream: list, k_path: int, plan) -> lis
     return ticks
 
 
+def idle_tick_figures(idle_s: float = 0.0009, rounds: int = 2) -> dict[str, float]:
+    """
+    Return each arm's tick back to back and after ``idle_s`` of sleep, medians (us) and ratio.
+
+    One recorded stream (the paper's scenario; the Panda's, with its 4 cm square) replayed into
+    a runtime: first every state at once (caches warm: the figures above), then with the
+    loop's idle between states, as a 1 kHz node sleeps between messages. What the tick costs
+    in the node follows the second (docs/results.md section 36).
+    """
+    out = {}
+    panda = panda_model()
+    for arm, model, cfg in (('paper', None, ScenarioConfig(duration=4.0)),
+                            ('7dof', panda, panda_scenario(panda, 4.0))):
+        stream, sent = _recorded_stream(model, cfg) if model else _plain_stream(cfg)
+        runs = {name: [] for name in ('hot', 'idle')}
+        for _ in range(rounds):
+            for name, idle in (('hot', 0.0), ('idle', idle_s)):
+                runs[name].append(_replayed_tick_us(model, cfg, stream, sent, idle))
+        hot, idle = (float(np.median(v)) for v in runs.values())
+        out.update({f'idle_tick_{arm}_us_median_hot': round(hot, 2),
+                    f'idle_tick_{arm}_us_median_idle': round(idle, 2),
+                    f'idle_tick_{arm}_idle_over_hot': round(idle / hot, 3)})
+    return out
+
+
+def _plain_stream(cfg: ScenarioConfig) -> tuple[list, dict]:
+    """Return the (stamp s, q, qdot, F_S) the paper's controller received in ``cfg``; no path."""
+    stream: list = []
+    run_scenario(ScenarioConfig(**{**vars(cfg), 'input_hook': lambda t, msg: stream.append(
+        (t, *msg)) or msg}))
+    return stream, {}
+
+
+def _replayed_tick_us(model, cfg: ScenarioConfig, stream: list, sent: dict,
+                      idle_s: float) -> float:
+    """Replay ``stream`` into a new runtime, ``idle_s`` asleep before each state; median tick."""
+    model = RobotModel.from_urdf() if model is None else model
+    theta0 = (model.theta_nominal * np.asarray(cfg.theta_hat0_scale)).tolist()
+    rt = ControllerRuntime(model, build_params(model, {**cfg.overrides, 'theta_hat0': theta0}))
+    names, frame, clock = list(model.joint_names), model.end_effector_link, time.perf_counter_ns
+    ticks, path = [], sent.get('plan')
+    for t, q, qdot, F_S in stream:
+        if path is not None and t >= sent['t']:
+            rt.on_path(path, 1)
+            path = None
+        if idle_s:
+            time.sleep(idle_s)
+        rt.on_joint_state(names, q, qdot, t)
+        rt.on_wrench(frame, F_S, t)
+        t0 = clock()
+        rt.tick(t)
+        ticks.append(clock() - t0)
+    return float(np.median(ticks[len(ticks) // 4:])) / 1e3
+
+
 def offline_figures(old_tree: str | None = None) -> dict[str, float]:
     """Measure the controller step percentiles and the paper scenario's real-time factor."""
     ratio = {} if old_tree is None else tick_ratio(old_tree)
@@ -186,5 +245,6 @@ def offline_figures(old_tree: str | None = None) -> dict[str, float]:
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             **path_tick_figures(panda), **normal_tick_figures(panda),
             **orientation_tick_figures(panda), **tick_impl_figures(panda),
+            **idle_tick_figures(),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

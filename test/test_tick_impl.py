@@ -148,7 +148,8 @@ def test_the_warm_up_calls_every_kernel_before_any_tick(panda, monkeypatch):
     tick.warm_up(panda)
     assert sorted(set(spy.calls)) == ['adapt', 'effort', 'task_reference']
     assert spy.calls.count('task_reference') == 2  # the 3-row and the 6-D task
-    assert spy_s.calls == ['law_front', 'law_back']  # the steady step (step_kernels.py)
+    # the reference, and the steady step (step_kernels.py)
+    assert spy_s.calls == ['reference_rows', 'law_front', 'law_back']
     warmed = []
     monkeypatch.setattr(CompiledTick, 'warm_up', lambda self, model: warmed.append(model))
     HybridForceController(panda, build_params(panda, {}).law)
@@ -184,6 +185,10 @@ def test_no_python_runs_inside_a_kernel_call(panda, ticks, monkeypatch):
     tau = tick.law_step(panda, q, q, kin, (np.ones(3),) * 3, np.ones(3), d.G, (0.1, 0.0),
                         d.gains, d.Gamma_inv, theta, 1e-3, True)[0]
     assert tau is not None and np.all(np.isfinite(tau))
+    rows = np.zeros((3, 3))
+    tick.reference_rows(np.ones((3, 3, 3)), 1.0, True, rows, 0.1, 0.0, 0.5, np.ones((2, 3)),
+                        0.0, 0.5, np.ones((2, 3)), rows)
+    assert np.all(np.isfinite(rows))
     assert calls == []
 
 
@@ -220,6 +225,46 @@ def test_steady_step_matches_the_reference(panda, arm):
             assert close(x, y), (k, float(np.abs(x - y).max()))
         assert abs(py.h - nb.h) <= REL * max(abs(py.h), 1.0)
     assert any(damped) == (model.n == 2) and not all(damped)
+
+
+class _Path:
+    """A path's rows (reference.py: any object with rows(tau))."""
+
+    @staticmethod
+    def rows(tau: float) -> np.ndarray:
+        return np.array([[0.5 + 0.1 * tau, 0.2, 0.3], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0]])
+
+
+def test_reference_rows_match_the_reference():
+    """
+    The compiled reference (step_kernels.reference_rows) is BlendedReference.rows' numpy.
+
+    The sine blending in from the arm, a correction (a stall) with its velocity and position
+    parts, a held point and a path, each blending in: the rows agree at every 7 ms over 3 s.
+    """
+    from hybrid_force_controller.core.law import reference as ref_mod
+    from hybrid_force_controller.core.law import step_kernels
+    assert step_kernels.CORRECT_VEL_S == ref_mod.CORRECT_VEL_S
+    sine = ref_mod.SineReference(np.array([1.0, 0.0, 0.2]), np.array([0.1, 0.05, 0.0]), 1.3)
+    n = np.array([0.0, 0.0, 1.0])
+    py, nb = ref_mod.BlendedReference(sine, n, 0.5), ref_mod.BlendedReference(sine, n, 0.5)
+    nb.kernel = step_kernels.reference_rows
+    events = {0.0: lambda r, t: r.start_from(t, np.array([1.1, 0.05, 0.2]), np.ones(3)),
+              0.8: lambda r, t: r.correct_from(t, np.array([1.2, 0.0, 0.2]), -np.ones(3)),
+              1.6: lambda r, t: r.switch(t, x_hold_W=np.array([0.9, 0.1, 0.2])),
+              2.2: lambda r, t: r.switch(t, path=_Path(), blend_s=0.3)}
+    cases = set()
+    for k in range(430):
+        tau = k * 0.007
+        for t_event, act in events.items():
+            if t_event <= tau < t_event + 0.007:
+                act(py, tau)
+                act(nb, tau)
+        a, b = py.rows(tau), nb.rows(tau)
+        assert a.shape == b.shape == (3, 3) and close(a, b), (tau, float(np.abs(a - b).max()))
+        cases.add((py.path is not None, py.x_hold_W is not None, tau - py.tau_b < py._tb,
+                   0.0 <= tau - py._corr_tau < 0.25))
+    assert len(cases) >= 5  # sine, blending, correcting, held, path
 
 
 def test_tick_impl_is_validated():

@@ -129,6 +129,11 @@ class HybridForceController:
         return self._tick.note
 
     @property
+    def reference_kernel(self):
+        """Return the compiled reference's kernel (tick_impl.py; None: numpy computes it)."""
+        return self._tick.reference_rows
+
+    @property
     def gains(self) -> LawGains:
         return self._d.gains
 

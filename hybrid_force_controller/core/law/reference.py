@@ -1,4 +1,9 @@
-"""Desired motion x_d(t) with its derivatives (section V of [1]), pure numpy."""
+"""
+Desired motion x_d(t) with its derivatives (section V of [1]), pure numpy.
+
+With ``tick_impl: compiled`` the runtime gives :class:`BlendedReference` the same sums as a
+numba kernel (step_kernels.reference_rows); nothing here imports numba.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -99,6 +104,9 @@ class BlendedReference:
     keeps its own clock).
     """
 
+    #: ``tick_impl: compiled``: step_kernels.reference_rows computes :meth:`rows` (None: numpy)
+    kernel: Any = None
+
     def __init__(self, sine: SineReference, n_W: np.ndarray, t_blend: float) -> None:
         self.sine, self.t_blend = sine, t_blend
         self.P_t = np.eye(3) - np.outer(n_W, n_W)
@@ -132,6 +140,12 @@ class BlendedReference:
 
     def rows(self, tau: float) -> np.ndarray:
         """Return the reference at ``tau``: the rows x_d, xdot_d, xddot_d of a new (3, 3) array."""
+        if self.kernel is not None:  # the same sums, compiled (tick_impl.py)
+            rows, sine = np.empty((3, 3)), self.path is None and self.x_hold_W is None
+            base = rows if sine else self._base_rows(tau)
+            self.kernel(self.sine._K, self.sine.omega, sine, base, tau, self.tau_b, self._tb,
+                        self._offsets, self._corr_tau, self._corr_tp, self._corr, rows)
+            return rows
         rows, t = self._base_rows(tau), tau - self.tau_b
         if not (self._tb <= 0.0 or t >= self._tb):  # blending (blend_start)
             rows += _hermite(t, self._tb).dot(self._offsets)

@@ -1,5 +1,5 @@
 r"""
-The law's steady step in two compiled calls around pinocchio's regressor (``tick_impl: compiled``).
+The law's steady step in two compiled calls around pinocchio's regressor, and the reference.
 
 The law's step in the force loop along the gains' n, the task translational (no approach, no
 moving normal, no 6-D task: every tick of the paper's scenario, and the Panda's with n given),
@@ -13,7 +13,9 @@ kernels.py's three. Each is the arithmetic its Python reference does, formula fo
   ``sqrt2 (v - w/8)`` with ``v = qdot``, ``w = qdot_r``;
 - :func:`law_back`: ``Y = (2 R1 - R2) P`` and ``tau_0`` ((R2)), eq. (5) in joint space
   (``tau = Y theta_hat + tau_0 + J^T (f - k_d e) - k_null N^T N s``, ``s = qdot - qdot_r``,
-  kernels.effort) and, when asked, eq. (26)'s next theta_hat (kernels.adapt).
+  kernels.effort) and, when asked, eq. (26)'s next theta_hat (kernels.adapt);
+- :func:`reference_rows`: reference.BlendedReference.rows, the desired motion of every tick (the
+  sine, or a held point's or a path's rows, with the blend from the arm and a correction).
 
 The sums run in another order than numpy's, so the two agree to rounding (test_tick_impl
 compares them on the paper's scenario, the Panda, a moving normal, a path and a fault episode).
@@ -24,15 +26,16 @@ from __future__ import annotations
 import math
 
 import numba as nb
-from numba import boolean, float64, int64
+from numba import boolean, float64, int64, void
 import numpy as np
 
 from .kernels import _OPTS, adapt, effort, task_reference
 
-__all__ = ['law_back', 'law_front']
+__all__ = ['law_back', 'law_front', 'reference_rows']
 
-_A2, _A1 = float64[:, :], float64[:]
+_A3, _A2, _A1 = float64[:, :, :], float64[:, :], float64[:]
 _SQRT2 = math.sqrt(2.0)
+CORRECT_VEL_S = 0.25  # reference.py's (test_tick_impl checks they are one value)
 
 
 @nb.njit(int64(_A2, _A1, _A1, _A1, _A1, _A1, float64, float64, _A2, _A2, _A2, float64, _A1,
@@ -94,3 +97,55 @@ def law_back(R1, R2, P, known, theta_hat, J_ee, f, k_d, e, N, qdot, qdot_r, k_nu
         adapt(theta_hat, Gamma_inv, Y_q, s, e, k_a, error_limit, dead_zone, dt, lo, hi,
               theta_out)
     return finite
+
+
+@nb.njit(nogil=True)
+def _hermite(t, T, out):
+    """reference._hermite: fill ``out`` (3, 2) with the blend weights at ``t`` of ``T``."""
+    s = t / T
+    out[0, 0] = 1.0 - 10 * s**3 + 15 * s**4 - 6 * s**5
+    out[0, 1] = T * (s - 6 * s**3 + 8 * s**4 - 3 * s**5)
+    out[1, 0] = (-30 * s**2 + 60 * s**3 - 30 * s**4) / T
+    out[1, 1] = 1.0 - 18 * s**2 + 32 * s**3 - 15 * s**4
+    out[2, 0] = (-60 * s + 180 * s**2 - 120 * s**3) / T**2
+    out[2, 1] = (-36 * s + 96 * s**2 - 60 * s**3) / T
+
+
+@nb.njit(void(_A3, float64, boolean, _A2, float64, float64, float64, _A2, float64, float64,
+              _A2, _A2), **_OPTS)
+def reference_rows(K, omega, sine, base, tau, tau_b, t_b, offsets, corr_tau, corr_tp, corr,
+                   out):
+    """
+    Fill ``out`` with reference.BlendedReference.rows at ``tau``: x_d, xdot_d, xddot_d.
+
+    The base is the sine ``K (1, sin wt, cos wt)`` (``sine``) or ``base``'s rows (a held point,
+    a path); then the blend of ``offsets`` (dp, dv) over ``t_b`` from ``tau_b``, and a
+    correction ``corr`` (dp, dv) from ``corr_tau``: its velocity over CORRECT_VEL_S, its
+    position over ``corr_tp``.
+    """
+    if sine:
+        wt = omega * tau
+        sn, cs = math.sin(wt), math.cos(wt)
+        for i in range(3):
+            for j in range(3):
+                out[i, j] = K[i, j, 0] + K[i, j, 1] * sn + K[i, j, 2] * cs
+    else:
+        out[:, :] = base
+    H = np.empty((3, 2))
+    t = tau - tau_b
+    if not (t_b <= 0.0 or t >= t_b):
+        _hermite(t, t_b, H)
+        for i in range(3):
+            for j in range(3):
+                out[i, j] += H[i, 0] * offsets[0, j] + H[i, 1] * offsets[1, j]
+    t = tau - corr_tau
+    if 0.0 <= t < CORRECT_VEL_S:
+        _hermite(t, CORRECT_VEL_S, H)
+        for i in range(3):
+            for j in range(3):
+                out[i, j] += H[i, 1] * corr[1, j]
+    if 0.0 <= t < corr_tp:
+        _hermite(t, corr_tp, H)
+        for i in range(3):
+            for j in range(3):
+                out[i, j] += H[i, 0] * corr[0, j]

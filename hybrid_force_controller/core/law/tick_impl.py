@@ -36,6 +36,7 @@ class PythonTick:
     name = 'python'
     fused = False  # no law_step: control_law.step runs its numpy steps
     steady_steps = 0  # the steps law_step ran (CompiledTick)
+    reference_rows = None  # the reference's kernel (CompiledTick; reference.BlendedReference)
 
     def __init__(self, n_joints: int) -> None:
         self._eye_n = np.eye(n_joints)
@@ -97,9 +98,10 @@ class CompiledTick(PythonTick):
         t0 = time.perf_counter()
         self._k = importlib.import_module(f'{__package__}.kernels')
         self._s = importlib.import_module(f'{__package__}.step_kernels')
+        self.reference_rows = self._s.reference_rows
         compiled = any(f.stats.cache_misses for f in (
             self._k.task_reference, self._k.effort, self._k.adapt, self._s.law_front,
-            self._s.law_back))
+            self._s.law_back, self._s.reference_rows))
         self.note = (f"tick_impl compiled: numba kernels {'compiled' if compiled else 'loaded'}"
                      f' in {time.perf_counter() - t0:.2f} s')
 
@@ -126,6 +128,9 @@ class CompiledTick(PythonTick):
                             None if J_w is None else np.zeros(3), N, q, 0.0)
         self.adapt(theta, np.eye(theta.size), Y_q, q, np.zeros(3), 1.0, 0.1, 0.0, 1e-3,
                    theta - 1.0, theta + 1.0)
+        rows = np.zeros((3, 3))
+        self._s.reference_rows(np.zeros((3, 3, 3)), 1.0, True, rows, 0.1, 0.0, 1.0,
+                               np.zeros((2, 3)), 0.0, 1.0, np.zeros((2, 3)), rows)
         m = kin.J_ee.shape[0]
         z3 = np.zeros(3)
         with contextlib.suppress(np.linalg.LinAlgError):  # singular at q = 0: it ran all the same

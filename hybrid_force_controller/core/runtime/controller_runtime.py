@@ -95,6 +95,7 @@ class ControllerRuntime(RuntimeInterface):
         self._command = CommandStage(params.runtime.effort_limits)
         self._hold, self._contact = SafeHold(model), ContactDetector()
         self._motion = Motion(params, model.task_index)
+        self._motion.ref.kernel = self.ctrl.reference_kernel  # tick_impl compiled: its kernel
         self._clock = RunClock()
         self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
         self._normal = SurfaceNormal(params, model.task_axes)  # n, or n_hat (surface.py)

@@ -4,8 +4,8 @@ The layer rule and the groups inside each layer, derived from the tree.
 Layers: core <- tools <- ros (and sim_node).
 
 * ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself, and numba
-  in ``core/law/kernels.py`` and ``core/law/step_kernels.py`` alone (the compiled tick, imported
-  by law/tick_impl.py when ``tick_impl`` is compiled: ``tick_impl: python`` never loads numba);
+  in ``core/law/*kernels.py`` alone (the compiled tick, imported by law/tick_impl.py when
+  ``tick_impl`` is compiled: ``tick_impl: python`` never loads numba);
 * ``tools/`` imports the standard library, numpy, rosbags, matplotlib, ``core`` and ``tools``
   (never rclpy or a ROS message package);
 * only ``ros/`` and ``sim_node/`` import rclpy;
@@ -169,8 +169,8 @@ MUJOCO_USERS = {'sim_node/mujoco_scene.py', 'sim_node/mujoco_plant.py'}
 def test_numba_is_imported_only_by_the_kernels():
     users = {str(p.relative_to(ROOT)) for p in [*PKG.rglob('*.py'), *(ROOT / 'sim_node').rglob(
         '*.py')] if 'numba' in {n.split('.')[0] for n in _imports(p)}}
-    assert users == {'hybrid_force_controller/core/law/kernels.py',
-                     'hybrid_force_controller/core/law/step_kernels.py'}
+    assert users == {f'hybrid_force_controller/core/law/{name}.py'
+                     for name in ('kernels', 'step_kernels', 'stiffness_kernels')}
 
 
 def test_the_python_tick_does_not_load_numba():

@@ -267,6 +267,94 @@ def test_reference_rows_match_the_reference():
     assert len(cases) >= 5  # sine, blending, correcting, held, path
 
 
+_STIFFNESS_STATE = ('k_hat', 'k_hat_std', 'valid', 'k_s', 'k_s_log_rate', 'excited',
+                    'excitation_n', 'saturated', 'samples_used', 'samples_rejected', 'restarts',
+                    'changes', '_x_f', '_x_last', '_x_ref', '_x_bar', '_b', '_r_uu', '_r_ub',
+                    '_r_bb', '_cusum', '_w', '_s2_sum', '_held')
+
+
+def _same_estimates(py, nb, where) -> None:
+    for name in _STIFFNESS_STATE:
+        a, b = getattr(py, name), getattr(nb, name)
+        if a is None or isinstance(a, (bool, int, tuple)):
+            ok = a == b if not isinstance(a, tuple) else b is not None and close(a, b)
+        else:
+            ok = close(a, b)
+        assert ok, (where, name, a, b)
+
+
+@pytest.mark.parametrize('settings', [{}, {'k_hat0': 800.0, 'change_force': 0.0,
+                                           'k_s_time_constant': 0.0, 'force_filter_hz': 0.0},
+                                      {'enabled': False, 'time_constant': 0.5}])
+def test_stiffness_kernels_match_the_reference(settings):
+    """
+    The compiled stiffness estimate (stiffness_kernels.py) is stiffness.py's, sample by sample.
+
+    A contact loading and oscillating on a 2000 N/m surface, spikes of 1 cm after the estimate
+    is valid (S10), a NaN sample, the surface stiffening to 3000 N/m (S9), a contact loss, and
+    the rare calls (re-anchoring, new settings, a k_s command set, a filter restart) made on
+    both: every attribute of the estimate agrees after every call.
+    """
+    from hybrid_force_controller.core.law import stiffness as ref_mod, stiffness_kernels as sk
+    from hybrid_force_controller.core.law.stiffness_compiled import CompiledStiffnessEstimator
+    assert (sk.MIN_SAMPLES, sk.MAX_NORMAL_SPEED, sk.CHANGE_TIME) == (
+        ref_mod.MIN_SAMPLES, ref_mod.MAX_NORMAL_SPEED, ref_mod.CHANGE_TIME)
+    config = ref_mod.StiffnessConfig(**settings)
+    py, nb = ref_mod.StiffnessEstimator(config), CompiledStiffnessEstimator(config, sk)
+    rng = np.random.default_rng(5)
+    rare = {2500: lambda e: e.re_anchor(),
+            3500: lambda e: e.reconfigure(ref_mod.StiffnessConfig(
+                **{**settings, 'valid_tol': 0.1})),
+            4200: lambda e: e.set_k_s_command(2500.0),
+            4600: lambda e: e.forget_data(restart_filter=True), 5000: lambda e: e.restart()}
+    seen = set()
+    for k in range(6000):
+        t, dt = k * 1e-3, 1e-3 * (1.0 + 0.1 * rng.uniform(-1.0, 1.0))
+        k_true, touching = (2000.0 if t < 3.0 else 3000.0), not 5.3 <= t < 5.5
+        x_n = 0.002 + 0.0005 * math.sin(2 * math.pi * 2.0 * t) if touching else -0.01
+        f_n = k_true * x_n + rng.normal(0.0, 0.01) if touching else 0.0
+        if k % 401 == 400:
+            x_n += 0.01  # a spike
+        if k == 1500:
+            f_n = math.nan
+        if k in rare:
+            rare[k](py), rare[k](nb)
+        for est in (py, nb):
+            est.update(f_n, x_n, dt, touching)
+        _same_estimates(py, nb, (k, 'update'))
+        assert py.k_s_command(dt) == pytest.approx(nb.k_s_command(dt), rel=REL, abs=0.0)
+        _same_estimates(py, nb, (k, 'k_s'))
+        seen |= {name for name in ('valid', 'excited', 'saturated') if getattr(py, name)}
+        seen |= {'held'} if py._held else set()
+    assert {'valid', 'excited', 'held'} <= seen and py.samples_rejected >= 10
+    assert py.restarts == 1 + py.changes and (py.changes >= 1) == (config.change_force > 0.0)
+
+
+def test_a_stale_cache_of_the_step_kernels_is_dropped(tmp_path):
+    """
+    Numba's cache sees only its own file: step_kernels' is dropped when kernels.py is newer.
+
+    Only that module's cache files go, and only when one is older than the dependency.
+    """
+    import os
+    from hybrid_force_controller.core.law.step_kernels import drop_stale_cache
+    module, dependency = tmp_path / 'step_kernels.py', tmp_path / 'kernels.py'
+    cache = tmp_path / '__pycache__'
+    cache.mkdir()
+    mine = [cache / 'step_kernels.law_back-90.py311.nbi',
+            cache / 'step_kernels.law_back-90.py311.1.nbc']
+    other = cache / 'kernels.effort-200.py311.nbi'
+    for path in (module, dependency, *mine, other):
+        path.write_text('x')
+    for path, when in ((dependency, 1000), (mine[0], 2000), (mine[1], 2000), (other, 500)):
+        os.utime(path, (when, when))
+    assert drop_stale_cache(module, dependency) == [] and all(p.exists() for p in mine)
+    os.utime(dependency, (3000, 3000))  # kernels.py edited after the cache was written
+    assert drop_stale_cache(module, dependency) == sorted(mine)
+    assert not any(p.exists() for p in mine) and other.exists()
+    assert drop_stale_cache(module, dependency) == []  # nothing left to drop
+
+
 def test_tick_impl_is_validated():
     model = RobotModel.from_urdf()
     assert build_params(model, {}).law.tick_impl == 'compiled'

@@ -134,6 +134,11 @@ class HybridForceController:
         return self._tick.reference_rows
 
     @property
+    def stiffness_kernels(self):
+        """Return the stiffness estimate's kernels (tick_impl.py; None: stiffness.py's Python)."""
+        return self._tick.stiffness_kernels
+
+    @property
     def gains(self) -> LawGains:
         return self._d.gains
 

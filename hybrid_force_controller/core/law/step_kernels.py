@@ -20,10 +20,16 @@ kernels.py's three. Each is the arithmetic its Python reference does, formula fo
 The sums run in another order than numpy's, so the two agree to rounding (test_tick_impl
 compares them on the paper's scenario, the Panda, a moving normal, a path and a fault episode).
 Explicit signatures: compiled at import (``cache=True``), never in a tick; ``nogil``.
+
+Numba's cache checks only the stamp of the file a kernel is defined in, not of the files whose
+kernels it calls (numba's "Notes on Caching"). These call kernels.py's: the cache beside this
+file is dropped here, at import, when kernels.py is newer than it (:func:`drop_stale_cache`), so
+an edit of kernels.py is compiled in and never runs stale.
 """
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numba as nb
 from numba import boolean, float64, int64, void
@@ -31,7 +37,24 @@ import numpy as np
 
 from .kernels import _OPTS, adapt, effort, task_reference
 
-__all__ = ['law_back', 'law_front', 'reference_rows']
+__all__ = ['drop_stale_cache', 'law_back', 'law_front', 'reference_rows']
+
+
+def drop_stale_cache(module: Path, dependency: Path) -> list[Path]:
+    """
+    Delete ``module``'s numba cache files that are older than ``dependency``; return them.
+
+    The cache is ``__pycache__/<module stem>.*.nbi`` and ``.nbc`` beside ``module``.
+    """
+    cache = sorted((module.parent / '__pycache__').glob(f'{module.stem}.*.nb[ic]'))
+    if not cache or min(p.stat().st_mtime for p in cache) >= dependency.stat().st_mtime:
+        return []
+    for path in cache:
+        path.unlink(missing_ok=True)
+    return cache
+
+
+drop_stale_cache(Path(__file__), Path(__file__).with_name('kernels.py'))  # before they load
 
 _A3, _A2, _A1 = float64[:, :, :], float64[:, :], float64[:]
 _SQRT2 = math.sqrt(2.0)

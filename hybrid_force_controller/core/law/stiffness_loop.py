@@ -19,12 +19,13 @@ prior, bounds or the normal change (:meth:`StiffnessLoop.configure`).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from .control_law import HybridForceController
 from .stiffness import StiffnessConfig, StiffnessEstimator
+from .stiffness_compiled import CompiledStiffnessEstimator
 
 __all__ = ['StiffnessLoop', 'StiffnessStatus']
 
@@ -50,8 +51,10 @@ class StiffnessStatus(NamedTuple):
 class StiffnessLoop:
     """Estimator + k_s of the law, for one runtime."""
 
-    def __init__(self, config: StiffnessConfig, n_W: np.ndarray) -> None:
-        self.estimator = StiffnessEstimator(config)
+    def __init__(self, config: StiffnessConfig, n_W: np.ndarray, kernels: Any = None) -> None:
+        """``kernels``: stiffness_kernels.py (tick_impl compiled; None: stiffness.py's Python)."""
+        self.estimator = (StiffnessEstimator(config) if kernels is None
+                          else CompiledStiffnessEstimator(config, kernels))
         self._n_W = np.array(n_W, dtype=float)
         self._n = tuple(self._n_W.tolist())  # n as floats: n^T p on floats
         self._known = False  # the estimate has been valid since the last reset

@@ -37,6 +37,7 @@ class PythonTick:
     fused = False  # no law_step: control_law.step runs its numpy steps
     steady_steps = 0  # the steps law_step ran (CompiledTick)
     reference_rows = None  # the reference's kernel (CompiledTick; reference.BlendedReference)
+    stiffness_kernels = None  # the stiffness estimate's (CompiledTick; stiffness_compiled.py)
 
     def __init__(self, n_joints: int) -> None:
         self._eye_n = np.eye(n_joints)
@@ -99,9 +100,10 @@ class CompiledTick(PythonTick):
         self._k = importlib.import_module(f'{__package__}.kernels')
         self._s = importlib.import_module(f'{__package__}.step_kernels')
         self.reference_rows = self._s.reference_rows
+        self.stiffness_kernels = sk = importlib.import_module(f'{__package__}.stiffness_kernels')
         compiled = any(f.stats.cache_misses for f in (
             self._k.task_reference, self._k.effort, self._k.adapt, self._s.law_front,
-            self._s.law_back, self._s.reference_rows))
+            self._s.law_back, self._s.reference_rows, sk.update, sk.k_s_command))
         self.note = (f"tick_impl compiled: numba kernels {'compiled' if compiled else 'loaded'}"
                      f' in {time.perf_counter() - t0:.2f} s')
 
@@ -128,6 +130,11 @@ class CompiledTick(PythonTick):
                             None if J_w is None else np.zeros(3), N, q, 0.0)
         self.adapt(theta, np.eye(theta.size), Y_q, q, np.zeros(3), 1.0, 0.1, 0.0, 1e-3,
                    theta - 1.0, theta + 1.0)
+        sk = self.stiffness_kernels
+        st, cf = np.zeros(len(sk.STATE)), np.ones(len(sk.CONFIG))
+        st[sk.STATE['_k_s']] = 1.0  # a k_s command of 1 N/m, the rest 0
+        sk.update(st, cf, 1.0, 0.0, 1e-3, True)
+        sk.k_s_command(st, cf, 1e-3)
         rows = np.zeros((3, 3))
         self._s.reference_rows(np.zeros((3, 3, 3)), 1.0, True, rows, 0.1, 0.0, 1.0,
                                np.zeros((2, 3)), 0.0, 1.0, np.zeros((2, 3)), rows)
@@ -214,7 +221,8 @@ class _WarmGains:
 def kernels_cached() -> bool:
     """Say whether the kernels' compiled code looks cached beside them (else: a first compile)."""
     cache = Path(__file__).parent / '__pycache__'
-    return all(any(cache.glob(f'{name}.*.nbi')) for name in ('kernels', 'step_kernels'))
+    return all(any(cache.glob(f'{name}.*.nbi'))
+               for name in ('kernels', 'step_kernels', 'stiffness_kernels'))
 
 
 def make_tick(impl: str, n_joints: int) -> PythonTick:

@@ -97,7 +97,8 @@ class ControllerRuntime(RuntimeInterface):
         self._motion = Motion(params, model.task_index)
         self._motion.ref.kernel = self.ctrl.reference_kernel  # tick_impl compiled: its kernel
         self._clock = RunClock()
-        self._stiffness = StiffnessLoop(params.stiffness, params.law.n)
+        self._stiffness = StiffnessLoop(params.stiffness, params.law.n,
+                                        self.ctrl.stiffness_kernels)  # tick_impl compiled: kernels
         self._normal = SurfaceNormal(params, model.task_axes)  # n, or n_hat (surface.py)
         self.orientation = ToolOrientation(params.orientation)  # the 6-D task (orientation.py)
         self.validator = SetValidator(model)

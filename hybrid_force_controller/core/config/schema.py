@@ -96,8 +96,9 @@ CONTROLLER_SCHEMA: tuple[ParamSpec, ...] = (
          'theta_hat holds, m (0: off; the 2-link arm of the paper: 0.21 at the end of its '
          'sine, 0 at full reach).', 0.0, 1e3),
     _law('tick_impl', 'string', 'compiled',
-         "compiled: the law's per-tick arithmetic (the task inverse, eq. (5)'s effort, eq. "
-         '(26)) in numba kernels, compiled on the first start (or at install) and cached; '
+         "compiled: the per-tick arithmetic (the task inverse, eq. (5)'s effort, eq. (26), "
+         'the reference, the stiffness estimate) in numba kernels, compiled on the first '
+         'start (or at install) and cached; '
          'python: the numpy reference, the same figures to rounding.', read_only=True),
     _law('theta_hat0', 'double_array', [],
          'Initial theta_hat (empty: the parameter set nominal, e.g. the URDF masses).',

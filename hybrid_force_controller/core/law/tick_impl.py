@@ -7,6 +7,11 @@ and :meth:`adapt` (eq. 26). ``PythonTick`` is numpy, as the law was written;
 ``CompiledTick`` calls kernels.py, imported (compiled on the first start, then loaded from
 its cache) when it is built, at configure, never in a tick; it allocates each output and the
 kernel fills it. No state: the law holds it.
+
+``CompiledTick`` also has the law's steady step in two calls (:meth:`CompiledTick.law_step`,
+step_kernels.py; ``fused``), and hands out the reference's kernel (``reference_rows``) and the
+stiffness estimate's (``stiffness_kernels``), which the runtime gives to those objects;
+``PythonTick`` has None of them, so the numpy and Python code runs.
 """
 from __future__ import annotations
 

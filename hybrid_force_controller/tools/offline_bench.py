@@ -90,11 +90,16 @@ def path_tick_figures(model=None) -> dict[str, float]:
     return out
 
 
-def _recorded_stream(model, cfg: ScenarioConfig) -> tuple[list, dict]:
-    """Run ``cfg`` and return the (stamp s, q, qdot, F_S) the controller received, and the path."""
+def _recorded_stream(model, cfg: ScenarioConfig, path: bool = True) -> tuple[list, dict]:
+    """
+    Run ``cfg`` and return the (stamp s, q, qdot, F_S) the controller received, and the path.
+
+    ``path`` False: no path (the paper's planar arm; ``sent`` is then empty).
+    """
     stream: list = []
     sent: dict = {}
-    cfg = ScenarioConfig(**{**vars(cfg), 'events': [square_path_event(0.5, 0.04, sent)],
+    events = [square_path_event(0.5, 0.04, sent)] if path else cfg.events
+    cfg = ScenarioConfig(**{**vars(cfg), 'events': events,
                             'input_hook': lambda t, msg: stream.append((t, *msg)) or msg})
     run_scenario(cfg, model)
     return stream, sent
@@ -188,7 +193,7 @@ def idle_tick_figures(idle_s: float = 0.0009, rounds: int = 2) -> dict[str, floa
     panda = panda_model()
     for arm, model, cfg in (('paper', None, ScenarioConfig(duration=4.0)),
                             ('7dof', panda, panda_scenario(panda, 4.0))):
-        stream, sent = _recorded_stream(model, cfg) if model else _plain_stream(cfg)
+        stream, sent = _recorded_stream(model, cfg, path=model is not None)
         runs = {name: [] for name in ('hot', 'idle')}
         for _ in range(rounds):
             for name, idle in (('hot', 0.0), ('idle', idle_s)):
@@ -198,14 +203,6 @@ def idle_tick_figures(idle_s: float = 0.0009, rounds: int = 2) -> dict[str, floa
                     f'idle_tick_{arm}_us_median_idle': round(idle, 2),
                     f'idle_tick_{arm}_idle_over_hot': round(idle / hot, 3)})
     return out
-
-
-def _plain_stream(cfg: ScenarioConfig) -> tuple[list, dict]:
-    """Return the (stamp s, q, qdot, F_S) the paper's controller received in ``cfg``; no path."""
-    stream: list = []
-    run_scenario(ScenarioConfig(**{**vars(cfg), 'input_hook': lambda t, msg: stream.append(
-        (t, *msg)) or msg}))
-    return stream, {}
 
 
 def _replayed_tick_us(model, cfg: ScenarioConfig, stream: list, sent: dict,

@@ -103,6 +103,8 @@ class RobotModel:
         self._P, self._pi_0 = ps.P, ps.pi_0
         self._has_pi_0 = bool(np.any(ps.pi_0))
         self._P_pi_0 = np.column_stack((ps.P, ps.pi_0))
+        # (P, known): theta's map of regressor_affine (known: with pi_0 as its last column)
+        self.regressor_map = (self._P_pi_0, True) if self._has_pi_0 else (self._P, False)
         self.theta_names, self.theta_nominal = ps.theta_names, ps.theta_nominal
         self.task_axes = self._detect_task_axes()
         self.m = len(self.task_axes)
@@ -241,11 +243,6 @@ class RobotModel:
             return R.dot(self._P), None
         Y_tau_0 = R.dot(self._P_pi_0)  # [P, pi_0]: Y and tau_0 in one product
         return Y_tau_0[:, :-1], Y_tau_0[:, -1]
-
-    @property
-    def regressor_map(self) -> tuple[np.ndarray, bool]:
-        """``(P, known)``: theta's map of :meth:`regressor_affine` (``known``: with pi_0 last)."""
-        return (self._P_pi_0, True) if self._has_pi_0 else (self._P, False)
 
     def regressor_pair(self, q: np.ndarray, V: np.ndarray,
                        qddot_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -13,7 +13,7 @@ from typing import Any, Callable
 from hybrid_force_controller.core.config.params import ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import Surface
-from hybrid_force_controller.core.offline.simulator import ArmSimulator
+from hybrid_force_controller.core.offline.simulator import ArmSimulator, PLANT_IMPLS
 import numpy as np
 
 from .mujoco_params import check_physics, DISC_HALF_THICKNESS_M, mujoco_options
@@ -57,8 +57,11 @@ def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
                 f"tool_shape {v['tool_shape']!r} needs physics:=mujoco: the paper's physics "
                 'models a point tool (no rim, no contact moment)')
         plant = model.with_theta(v['masses']) if v['masses'] else model
+        if v['plant_impl'] not in PLANT_IMPLS:
+            raise ParameterValidationError(f'plant_impl must be one of {list(PLANT_IMPLS)}, '
+                                           f"got {v['plant_impl']!r}")
         return ArmSimulator(plant, surface, q0, substeps=v['substeps'],
-                            noise_sigma=v['noise_sigma'], seed=v['seed'])
+                            noise_sigma=v['noise_sigma'], seed=v['seed'], impl=v['plant_impl'])
     from .mujoco_plant import MujocoPlant
     theta = np.asarray(v['masses'], dtype=float) if v['masses'] else None
     return MujocoPlant(model, urdf, mujoco_options(v), surface, q0, dt=1.0 / v['rate_hz'],

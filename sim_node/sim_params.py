@@ -49,6 +49,8 @@ SIM_SCHEMA = tuple(_S(*a, read_only=a[0] not in RUNTIME, **k) for *a, k in (
     ('wrench_clock_offset', 'double', 0.0, "Added to the wrench's stamps, s: an F/T sensor "
      'driver on a PC whose clock is off (0: none).', -1e6, 1e6, {}),
     ('seed', 'integer', 0, 'Noise seed.', 0, 2 ** 31 - 1, {}),
+    ('plant_impl', 'string', 'compiled', "physics:=paper: the plant's step compiled (numba, "
+     "core/offline/plant_kernels.py) or 'python' (pinocchio's ABA, the reference).", {}),
     ('substeps', 'integer', 2, 'Integration sub-steps per step (the offline scenarios use 2).',
      1, 1000, {}),
     ('command_timeout', 'double', 0.1, 'The watchdog acts after this long without a '

@@ -4,8 +4,9 @@ The layer rule and the groups inside each layer, derived from the tree.
 Layers: core <- tools <- ros (and sim_node).
 
 * ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself, and numba
-  in ``core/law/*kernels.py`` alone (the compiled tick, imported by law/tick_impl.py when
-  ``tick_impl`` is compiled: ``tick_impl: python`` never loads numba);
+  in ``core/law/*kernels.py`` and ``core/offline/plant_kernels.py`` alone (the compiled tick
+  and plant, imported when ``tick_impl`` or ``plant_impl`` is compiled: the Python ones never
+  load numba);
 * ``tools/`` imports the standard library, numpy, rosbags, matplotlib, ``core`` and ``tools``
   (never rclpy or a ROS message package);
 * only ``ros/`` and ``sim_node/`` import rclpy;
@@ -169,8 +170,8 @@ MUJOCO_USERS = {'sim_node/mujoco_scene.py', 'sim_node/mujoco_plant.py'}
 def test_numba_is_imported_only_by_the_kernels():
     users = {str(p.relative_to(ROOT)) for p in [*PKG.rglob('*.py'), *(ROOT / 'sim_node').rglob(
         '*.py')] if 'numba' in {n.split('.')[0] for n in _imports(p)}}
-    assert users == {f'hybrid_force_controller/core/law/{name}.py'
-                     for name in ('kernels', 'step_kernels', 'stiffness_kernels')}
+    assert users == {f'hybrid_force_controller/core/{name}.py' for name in (
+        'law/kernels', 'law/step_kernels', 'law/stiffness_kernels', 'offline/plant_kernels')}
 
 
 def test_the_python_tick_does_not_load_numba():
@@ -183,6 +184,17 @@ def test_the_python_tick_does_not_load_numba():
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip().splitlines()[-1] == 'False'
+
+
+def test_the_python_plant_does_not_load_numba():
+    code = ('import sys, numpy as np; from hybrid_force_controller.core.offline.simulator import '
+            'ArmSimulator; from hybrid_force_controller.core.model.robot_model import RobotModel; '
+            "s = ArmSimulator(RobotModel.from_urdf(), None, np.zeros(2), impl='python'); "
+            "s.step(np.zeros(2), 1e-3); print(s.impl, 'numba' in sys.modules)")
+    proc = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == 'python False'
 
 
 def test_mujoco_is_imported_only_by_the_mujoco_plant():

@@ -41,7 +41,8 @@ class ScenarioConfig:
     watchdog, s) go to the engine. ``surface_normal`` (None: the controller's ``n``),
     ``surface_shape``, ``surface_radius`` and ``surface_axis`` describe the workpiece as the
     sim's parameters do (environment.py ``make_surface``): touched at the tool's start, its
-    normal there ``surface_normal``; the controller is told only ``n``.
+    normal there ``surface_normal``; the controller is told only ``n``. ``plant_impl``: the
+    plant's step compiled (plant_kernels.py) or its Python reference (simulator.py).
     """
 
     k: float = 1700.0
@@ -61,6 +62,7 @@ class ScenarioConfig:
     surface_shape: str = 'plane'
     surface_radius: float = 0.5
     surface_axis: tuple[float, ...] | None = None
+    plant_impl: str = 'compiled'
 
 
 @dataclass(kw_only=True)
@@ -105,7 +107,7 @@ def run_scenario(cfg: ScenarioConfig, model: RobotModel | None = None,
                make_surface(cfg.surface_shape, cfg.k, p0, cfg.surface_normal or params.law.n,
                             cfg.surface_radius, cfg.surface_axis))
     plant = ArmSimulator(model, surface, q0, substeps=cfg.substeps,
-                         noise_sigma=cfg.noise_sigma, seed=cfg.seed)
+                         noise_sigma=cfg.noise_sigma, seed=cfg.seed, impl=cfg.plant_impl)
     timing = TimingModel.lockstep(cfg.delay_steps) if cfg.timing is None else cfg.timing
     log = run_loop(runtime, plant, cfg.duration, timing, cfg.events, clock_ns=clock_ns,
                    input_hook=cfg.input_hook, command_timeout=cfg.command_timeout)

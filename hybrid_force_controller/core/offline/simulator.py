@@ -13,10 +13,13 @@ import numpy as np
 import pinocchio as pin
 
 from .environment import Surface
+from .plant_compiled import compiled_plant, surface_array
 from ..model.robot_model import RobotModel
 from ..runtime.contact import in_contact
 
-__all__ = ['ArmSimulator', 'Measurement', 'SimulatorError']
+__all__ = ['ArmSimulator', 'Measurement', 'PLANT_IMPLS', 'SimulatorError']
+
+PLANT_IMPLS = ('compiled', 'python')
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -58,8 +61,15 @@ class ArmSimulator:
     def __init__(self, model: RobotModel, surface: Surface | None, q0: np.ndarray,
                  qdot0: np.ndarray | None = None, *, substeps: int = 4,
                  noise_sigma: float = 0.0, seed: int = 0,
-                 friction_viscous: float = 0.0, friction_coulomb: float = 0.0) -> None:
+                 friction_viscous: float = 0.0, friction_coulomb: float = 0.0,
+                 impl: str = 'compiled') -> None:
+        if impl not in PLANT_IMPLS:
+            raise SimulatorError(f'plant_impl must be one of {list(PLANT_IMPLS)}, got {impl!r}')
         self.model = model
+        # compiled (plant_kernels.py) or the Python reference below; ``impl_note`` says which
+        self._compiled, self.impl_note = (compiled_plant(model) if impl == 'compiled' else
+                                          (None, 'plant_impl python'))
+        self.impl = 'python' if self._compiled is None else 'compiled'
         self.surface = surface
         self.q = np.array(q0, dtype=float)
         self.qdot = np.zeros(model.n) if qdot0 is None else np.array(qdot0, dtype=float)
@@ -76,12 +86,25 @@ class ArmSimulator:
         self._tau_c: np.ndarray | None = None  # contact torque at the current q, if known
         self._pin_model, self._pin_data = model.model, model.data
 
+    @property
+    def surface(self) -> Surface | None:
+        """Return the workpiece the tool presses, None for free motion; set it between steps."""
+        return self._surface
+
+    @surface.setter
+    def surface(self, surface: Surface | None) -> None:
+        self._surface, self._sf = surface, surface_array(surface)
+        self._tau_c = None
+
     def _contact(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple]:
         """
         Contact force on the surface, its joint torque ``-J_p^T f`` and the tool pose.
 
         All in ``base_link`` (the frame of ``_W`` quantities).
         """
+        if self._compiled is not None:
+            f_W, tau_c, p_W, R_W = self._compiled.contact(q, self._sf)
+            return f_W, tau_c, (p_W, R_W, None)
         m, d, fid = self._pin_model, self._pin_data, self.model.frame_id
         J = pin.computeFrameJacobian(m, d, q, fid, _LWA)[:3]
         T_root_ee = pin.updateFramePlacement(m, d, fid)
@@ -103,6 +126,12 @@ class ArmSimulator:
             raise SimulatorError(f'dt must be finite and > 0, got {dt}')
         self.tau = tau.copy()
         h = dt / self.substeps
+        if self._compiled is not None:  # the same steps in one call (plant_kernels.py)
+            self.q, self.qdot, p_W, R_W_ee, f_true = self._compiled.step(
+                self.q, self.qdot, self.tau, h, self.substeps, self.friction, self._sf)
+            self._tau_c = None
+            self.t += dt
+            return self._measurement(f_true, p_W, R_W_ee)
         b, fc = self.friction
         q, qdot = self.q, self.qdot
         for i in range(self.substeps):
@@ -132,8 +161,13 @@ class ArmSimulator:
     def measure(self) -> Measurement:
         """Sensor readings at the current state (noise drawn from the seeded generator)."""
         f_true, self._tau_c, (p_W, R_W_ee, _) = self._contact(self.q)
+        return self._measurement(f_true, p_W, R_W_ee)
+
+    def _measurement(self, f_true: np.ndarray, p_W: np.ndarray,
+                     R_W_ee: np.ndarray) -> Measurement:
+        """Return the sensors' readings of the current state, from its true force and tool pose."""
         f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
         # q, qdot and tau are rebound (never mutated) by step(), so no copies are needed
-        f_n = float(np.linalg.norm(f_true))  # the surface pushes along its normal only
+        f_n = math.sqrt(f_true.dot(f_true))  # |f| (np.linalg.norm's sum); along the normal only
         return Measurement(self.t, self.q, self.qdot, self.tau, p_W, R_W_ee,
                            f_meas, f_true, in_contact(f_n))

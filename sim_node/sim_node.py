@@ -17,8 +17,9 @@ Until the first valid command the arm is held still (brakes). ``joint_state_cloc
 ``wrench_clock_offset`` (s) are added to the sensors' stamps: drivers on PCs whose clocks are
 off (the true force and ``/clock`` keep the sim's time).
 
-Real time: physics runs on wall time. A timer at ``rate_hz`` integrates every period that
-has passed since the last callback (a late callback catches up, at most
+Real time: physics runs on wall time. At ``rate_hz`` (run_node's spin loop, which wakes at
+each period's end: :meth:`SimNode.take_pacing`; a timer when the node is spun elsewhere) it
+integrates every period that has passed since the last call (a late callback catches up, at most
 ``max_catch_up`` periods; older time is dropped and counted) with the last command held,
 as a ros2_control effort controller holds it, and the watchdog's action for the periods that
 ended more than ``command_timeout`` after it (``watchdog_action``: ``zero`` effort, the arm
@@ -281,6 +282,28 @@ class SimNode(Node):
         t_begin = self._t_wall
         self._t_wall += periods * self.dt
         self._run(t_begin, periods)
+
+    def take_pacing(self) -> Callable[[], float] | None:
+        """
+        Hand the real-time step to the caller's spin loop (run_node); None in lockstep.
+
+        The 1 kHz timer is destroyed: with the EventsExecutor its expiry woke a timer thread
+        that then woke this one, two hand-offs and 4 % of a core per period (docs/results.md
+        section 38). The caller instead calls the returned function, which steps what is due
+        (:meth:`_advance`, guarded) and returns the seconds until the next period ends, and
+        spins the executor for at most that long (a command wakes it sooner). A node built in
+        another program keeps its timer.
+        """
+        if self.lockstep:
+            return None
+        self.destroy_timer(self.timer)
+        self.timer = None
+        advance = self._guarded('timer', self._advance)
+
+        def pace() -> float:
+            advance()
+            return max(0.0, self._t_wall + self.dt - time.monotonic())
+        return pace
 
     def _on_watchdog(self) -> None:
         """Lockstep: a step after WATCHDOG_S (wall) without a command, lockstep_watchdog then."""

@@ -90,6 +90,37 @@ def test_a_command_after_a_held_thread_first_runs_the_missed_periods(sim):
     assert sim.counters['command_timeouts'] == 1
 
 
+def test_the_spin_loop_steps_the_sim_at_its_period_without_a_timer(sim):
+    """
+    ``take_pacing`` hands the step to run_node's loop, and the timer is gone.
+
+    The function it returns steps the periods that ended and says how long until the next one
+    ends. The 20 ms between two calls is the stimulus (a bare sleep: the loop spun meanwhile).
+    """
+    pace = sim.take_pacing()
+    assert sim.timer is None
+    sim._on_command(_command([0.1, 0.1]))
+    pace()
+    steps, t = sim.counters['steps'], time.monotonic()
+    time.sleep(0.02)
+    wait = pace()
+    passed = (time.monotonic() - t) / sim.dt
+    assert 0.0 <= wait <= sim.dt
+    assert passed - 1.0 <= sim.counters['steps'] - steps <= passed + 1.0
+    assert pace() >= 0.0 and sim.counters['errors'] == 0
+
+
+def test_lockstep_keeps_its_watchdog_timer():
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id('sim_watchdog'))
+    sim = SimNode(context=context, parameter_overrides=[Parameter('lockstep', value=True)])
+    try:
+        assert sim.take_pacing() is None and sim.timer is not None
+    finally:
+        sim.destroy_node()
+        context.try_shutdown()
+
+
 @pytest.mark.parametrize('action', ['zero', 'brake'])
 def test_the_watchdog_action_lets_the_arm_fall_or_brakes_it(action):
     """

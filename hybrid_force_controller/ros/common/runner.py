@@ -8,6 +8,8 @@ down under a running callback (an ``RCLError`` from a publisher) and never wakes
 ``EventsExecutor.spin()``. Here SIGINT/SIGTERM complete a future instead, and the executor
 spins until that future is done, in slices (``spin_until_future_complete`` without a
 timeout busy-waits in the Jazzy EventsExecutor), so the node is destroyed before shutdown.
+A node with ``take_pacing`` (the sim) is stepped by this loop instead of by a timer: it spins
+one event at a time, at most until the node's next period ends.
 """
 from __future__ import annotations
 
@@ -54,10 +56,15 @@ def spin_until_signal(node: Node, executor: Executor) -> int:
             stop.set_result(signum)
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    # a node that steps on its own period (the sim) is called at each period's end, from here
+    pace = getattr(node, 'take_pacing', lambda: None)()
     try:
         executor.add_node(node)
         while not stop.done() and node.context.ok():
-            executor.spin_until_future_complete(stop, timeout_sec=SPIN_SLICE_S)
+            if pace is None:
+                executor.spin_until_future_complete(stop, timeout_sec=SPIN_SLICE_S)
+            else:  # wait for an event at most until the next period, then step what is due
+                executor.spin_once(timeout_sec=min(pace(), SPIN_SLICE_S))
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -112,6 +112,8 @@ class SimNode(Node):
             raise ParameterValidationError(f'joints must be a permutation of {model.joint_names}')
         self.to_model = [self.joints.index(j) for j in model.joint_names]
         self.to_msg = np.array([model.joint_names.index(j) for j in self.joints])
+        # the message's order is the model's (the usual case): a slice copy, 0.1 us, not a take
+        self.same_order = bool(np.array_equal(self.to_msg, np.arange(len(self.joints))))
         q0 = np.asarray(v['q0'], dtype=float)[self.to_model]
         kin0 = model.kinematics(q0, np.zeros(model.n))
         self.p0_W = kin0.p_W
@@ -245,7 +247,8 @@ class SimNode(Node):
 
     def _on_command(self, raw: bytes) -> None:
         tau = read_float64_array(raw)
-        if tau.shape != (len(self.joints),) or not np.all(np.isfinite(tau)):
+        if tau.shape != (len(self.joints),) or not (  # the dot: 0.3 us, exact test if not finite
+                math.isfinite(tau.dot(tau)) or np.isfinite(tau).all()):
             self.counters['commands_rejected'] += 1
             self.get_logger().warning(f'rejected command {tau.tolist()}: need {len(self.joints)}'
                                       ' finite efforts; keeping the last valid one',
@@ -363,7 +366,10 @@ class SimNode(Node):
         js, ft, true = self.js, self.ft, self.true
         q, qdot, tau = js.arrays
         for src, dst in ((meas.q, q), (meas.qdot, qdot), (meas.tau, tau)):
-            np.take(src, self.to_msg, out=dst)  # into the message's bytes, no copy between
+            if self.same_order:  # into the message's bytes, no copy between
+                dst[:] = src
+            else:
+                np.take(src, self.to_msg, out=dst)
         if not self.sensor_frozen:  # frozen: the reused message repeats its last reading
             ft.arrays[0][:] = sensor_wrench_from_f_W(meas.R_W_ee, meas.f_W)
             if self.sensor_offset is not None:  # a biased sensor

@@ -120,7 +120,8 @@ class ArmSimulator:
     def step(self, tau: np.ndarray, dt: float) -> Measurement:
         """Advance ``dt`` seconds with the efforts ``tau`` held constant."""
         tau = np.asarray(tau, dtype=float)
-        if tau.shape != (self.model.n,) or not math.isfinite(tau.sum()):
+        if tau.shape != (self.model.n,) or not (  # the dot: cheap; the exact test if not finite
+                math.isfinite(tau.dot(tau)) or np.isfinite(tau).all()):
             raise SimulatorError(f'effort must be {self.model.n} finite values, got {tau}')
         if not (dt > 0.0 and math.isfinite(dt)):
             raise SimulatorError(f'dt must be finite and > 0, got {dt}')
@@ -166,7 +167,8 @@ class ArmSimulator:
     def _measurement(self, f_true: np.ndarray, p_W: np.ndarray,
                      R_W_ee: np.ndarray) -> Measurement:
         """Return the sensors' readings of the current state, from its true force and tool pose."""
-        f_meas = f_true + (self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma else 0.0)
+        f_meas = (f_true + self.rng.normal(0.0, self.noise_sigma, 3) if self.noise_sigma
+                  else f_true.copy())
         # q, qdot and tau are rebound (never mutated) by step(), so no copies are needed
         f_n = math.sqrt(f_true.dot(f_true))  # |f| (np.linalg.norm's sum); along the normal only
         return Measurement(self.t, self.q, self.qdot, self.tau, p_W, R_W_ee,

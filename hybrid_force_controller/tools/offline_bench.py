@@ -20,6 +20,9 @@ Offline speed figures of the ``bench`` executable (never asserted in tests).
 - ``idle_tick_{paper,7dof}_us_median_hot`` / ``_idle`` and ``_idle_over_hot``: one recorded
   stream replayed into a runtime, its states back to back and then 0.9 ms asleep before each
   (a 1 kHz node's idle between messages, which leaves the tick's caches cold);
+- ``plant_step_{paper,7dof}_us_median_{python,compiled}`` and ``_compiled_over_python``: one
+  plant step (2 sub-steps, efforts held, the tool 1 mm into the plane) with ``plant_impl``
+  python (pinocchio's ABA) and compiled (plant_kernels.py), alternated twice;
 - ``sim_realtime_factor`` and ``paper_wall_time_s``: the 20 s paper scenario offline;
 - with ``old_tree`` (a checkout of commit 34ec57e, the code before the round that made the
   tick dearer): its controller step timed in a subprocess, alternating three times with
@@ -39,8 +42,10 @@ import numpy as np
 
 from ..core.config.params import build_params
 from ..core.model.robot_model import RobotModel
-from ..core.offline.arm7 import panda_model, panda_scenario, square_path_event
-from ..core.offline.scenario import run_scenario, ScenarioConfig
+from ..core.offline.arm7 import panda_model, PANDA_Q0, panda_scenario, square_path_event
+from ..core.offline.environment import make_surface
+from ..core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
+from ..core.offline.simulator import ArmSimulator
 from ..core.runtime.controller_runtime import ControllerRuntime
 
 
@@ -205,6 +210,31 @@ def idle_tick_figures(idle_s: float = 0.0009, rounds: int = 2) -> dict[str, floa
     return out
 
 
+def plant_impl_figures(steps: int = 2000, rounds: int = 2) -> dict[str, float]:
+    """Return each arm's plant step with either ``plant_impl``, medians (us), and the ratio."""
+    out = {}
+    for arm, model, n_W in (('paper', RobotModel.from_urdf(), (0.0, -1.0, 0.0)),
+                            ('7dof', panda_model(), (0.0, 0.0, -1.0))):
+        q0 = np.array(PAPER_Q0 if arm == 'paper' else PANDA_Q0)
+        p0 = model.kinematics(q0, np.zeros(model.n)).p_W
+        surface = make_surface('plane', 3000.0, p0 - 1e-3 * np.asarray(n_W), n_W)
+        runs = {'python': [], 'compiled': []}
+        for _ in range(rounds):
+            for impl, times in runs.items():
+                plant = ArmSimulator(model, surface, q0, substeps=2, impl=impl)
+                tau, ns = np.zeros(model.n), []
+                for _ in range(steps):
+                    t0 = time.perf_counter_ns()
+                    plant.step(tau, 1e-3)
+                    ns.append(time.perf_counter_ns() - t0)
+                times.append(float(np.median(ns)) / 1e3)
+        py, comp = (float(np.median(v)) for v in runs.values())
+        out.update({f'plant_step_{arm}_us_median_python': round(py, 2),
+                    f'plant_step_{arm}_us_median_compiled': round(comp, 2),
+                    f'plant_step_{arm}_compiled_over_python': round(comp / py, 3)})
+    return out
+
+
 def _replayed_tick_us(model, cfg: ScenarioConfig, stream: list, sent: dict,
                       idle_s: float) -> float:
     """Replay ``stream`` into a new runtime, ``idle_s`` asleep before each state; median tick."""
@@ -242,6 +272,6 @@ def offline_figures(old_tree: str | None = None) -> dict[str, float]:
             'controller_step_7dof_us_p99': round(float(np.percentile(panda_us, 99)), 2),
             **path_tick_figures(panda), **normal_tick_figures(panda),
             **orientation_tick_figures(panda), **tick_impl_figures(panda),
-            **idle_tick_figures(),
+            **idle_tick_figures(), **plant_impl_figures(),
             'paper_wall_time_s': round(wall, 3),
             'sim_realtime_factor': round(20.0 / wall, 2), **ratio}

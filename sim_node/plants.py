@@ -13,6 +13,7 @@ from typing import Any, Callable
 from hybrid_force_controller.core.config.params import ParameterValidationError
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.environment import Surface
+from hybrid_force_controller.core.offline.plant_compiled import plant_kernels_cached
 from hybrid_force_controller.core.offline.simulator import ArmSimulator, PLANT_IMPLS
 import numpy as np
 
@@ -45,9 +46,12 @@ def touch_offset(v: dict[str, Any], axis_W: np.ndarray | None = None
 
 
 def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
-               surface: Surface | None, q0: np.ndarray) -> Any:
+               surface: Surface | None, q0: np.ndarray,
+               log: Callable[[str], Any] | None = None) -> Any:
     """
     Build the plant of the sim's parameter values ``v`` (SIM_SCHEMA names).
+
+    ``log`` is told before a first compile of the compiled plant's kernels.
 
     Raises ParameterValidationError for a bad physics or MuJoCo option.
     """
@@ -60,6 +64,9 @@ def make_plant(v: dict[str, Any], model: RobotModel, urdf: str,
         if v['plant_impl'] not in PLANT_IMPLS:
             raise ParameterValidationError(f'plant_impl must be one of {list(PLANT_IMPLS)}, '
                                            f"got {v['plant_impl']!r}")
+        if v['plant_impl'] == 'compiled' and not plant_kernels_cached() and log is not None:
+            log('compiling the plant (numba kernels, about 5-10 s, once: cached for the next '
+                'starts)')
         return ArmSimulator(plant, surface, q0, substeps=v['substeps'],
                             noise_sigma=v['noise_sigma'], seed=v['seed'], impl=v['plant_impl'])
     from .mujoco_plant import MujocoPlant

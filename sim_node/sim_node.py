@@ -119,7 +119,7 @@ class SimNode(Node):
         self.p0_W = kin0.p_W
         self.touch_offset = touch_offset(v, kin0.R_W_ee[:, 2])  # the tool's reach, 0 on paper
         surface, (self.sensor_frozen, self.sensor_offset) = self._surface(v)
-        self.sim = make_plant(v, model, urdf, surface, q0)
+        self.sim = make_plant(v, model, urdf, surface, q0, self.get_logger().info)
         if getattr(self.sim, 'impl_note', None):  # the paper's physics: compiled or Python
             self.get_logger().info(self.sim.impl_note)
         self.binder = ParameterBinder(self, [s for s in SIM_SCHEMA if s.name in SURFACE],

@@ -12,7 +12,8 @@ from __future__ import annotations
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import panda_model, PANDA_Q0
 from hybrid_force_controller.core.offline.environment import make_surface, SURFACE_SHAPES
-from hybrid_force_controller.core.offline.plant_compiled import compiled_plant
+from hybrid_force_controller.core.offline.plant_compiled import (compiled_plant,
+                                                                plant_kernels_cached)
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.offline.simulator import ArmSimulator, SimulatorError
 import numpy as np
@@ -124,6 +125,7 @@ def test_the_brakes_and_a_bad_effort():
 def test_the_compiled_plant_loads_its_kernels_and_says_so():
     plant, note = compiled_plant(ARMS['panda'][0])
     assert plant is not None and note.startswith('plant_impl compiled: numba kernels ')
+    assert plant_kernels_cached()  # what the sim reads to say it compiles on a first start
 
 
 def test_the_paper_scenario_is_the_same_with_either_plant():

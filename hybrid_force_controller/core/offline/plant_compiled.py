@@ -10,6 +10,7 @@ never loads numba.
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 import time
 from typing import Any
 
@@ -19,7 +20,7 @@ import pinocchio as pin
 from .environment import ElasticSurface, Surface
 from ..model.robot_model import RobotModel
 
-__all__ = ['CompiledPlant', 'compiled_plant', 'surface_array']
+__all__ = ['CompiledPlant', 'compiled_plant', 'plant_kernels_cached', 'surface_array']
 
 _SHAPES = {'plane': 1.0, 'sphere': 2.0, 'cylinder': 3.0}
 _AGREEMENT = 1e-9  # relative, at the test state (rounding is 1e-15)
@@ -59,6 +60,11 @@ class CompiledPlant:
         p_W, R_W, f_W, tau_c = np.empty(3), np.empty((3, 3)), np.empty(3), np.empty(self.n)
         self._k.contact(self.ji, self.jf, self.cf, sf, q, p_W, R_W, f_W, tau_c)
         return f_W, tau_c, p_W, R_W
+
+
+def plant_kernels_cached() -> bool:
+    """Say whether the plant's compiled code looks cached beside it (else: a first compile)."""
+    return any((Path(__file__).parent / '__pycache__').glob('plant_kernels.*.nbi'))
 
 
 def compiled_plant(model: RobotModel) -> tuple[CompiledPlant | None, str]:

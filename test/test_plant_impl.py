@@ -13,7 +13,7 @@ from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import panda_model, PANDA_Q0
 from hybrid_force_controller.core.offline.environment import make_surface, SURFACE_SHAPES
 from hybrid_force_controller.core.offline.plant_compiled import (compiled_plant,
-                                                                plant_kernels_cached)
+                                                                 plant_kernels_cached)
 from hybrid_force_controller.core.offline.scenario import PAPER_Q0, run_scenario, ScenarioConfig
 from hybrid_force_controller.core.offline.simulator import ArmSimulator, SimulatorError
 import numpy as np

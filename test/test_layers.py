@@ -174,27 +174,25 @@ def test_numba_is_imported_only_by_the_kernels():
         'law/kernels', 'law/step_kernels', 'law/stiffness_kernels', 'offline/plant_kernels')}
 
 
-def test_the_python_tick_does_not_load_numba():
-    code = ('import sys; from hybrid_force_controller.core.law.control_law import '
-            'HybridForceController as H; from hybrid_force_controller.core.model.robot_model '
-            'import RobotModel; from hybrid_force_controller.core.config.params import '
-            "build_params; m = RobotModel.from_urdf(); H(m, build_params(m, {'tick_impl': "
-            "'python'}).law); print('numba' in sys.modules)")
-    proc = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
+_PYTHON_TICK = (
+    'from hybrid_force_controller.core.law.control_law import HybridForceController as H; '
+    'from hybrid_force_controller.core.model.robot_model import RobotModel; '
+    'from hybrid_force_controller.core.config.params import build_params; '
+    "m = RobotModel.from_urdf(); H(m, build_params(m, {'tick_impl': 'python'}).law)")
+_PYTHON_PLANT = (
+    'import numpy as np; from hybrid_force_controller.core.offline.simulator import '
+    'ArmSimulator; from hybrid_force_controller.core.model.robot_model import RobotModel; '
+    "s = ArmSimulator(RobotModel.from_urdf(), None, np.zeros(2), impl='python'); "
+    "s.step(np.zeros(2), 1e-3); assert s.impl == 'python'")
+
+
+@pytest.mark.parametrize('code', [_PYTHON_TICK, _PYTHON_PLANT], ids=['tick', 'plant'])
+def test_the_python_tick_and_plant_do_not_load_numba(code):
+    proc = subprocess.run([sys.executable, '-c', f"{code}; import sys; print('numba' in "
+                           'sys.modules)'], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip().splitlines()[-1] == 'False'
-
-
-def test_the_python_plant_does_not_load_numba():
-    code = ('import sys, numpy as np; from hybrid_force_controller.core.offline.simulator import '
-            'ArmSimulator; from hybrid_force_controller.core.model.robot_model import RobotModel; '
-            "s = ArmSimulator(RobotModel.from_urdf(), None, np.zeros(2), impl='python'); "
-            "s.step(np.zeros(2), 1e-3); print(s.impl, 'numba' in sys.modules)")
-    proc = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.strip().splitlines()[-1] == 'python False'
 
 
 def test_mujoco_is_imported_only_by_the_mujoco_plant():

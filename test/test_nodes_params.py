@@ -246,3 +246,23 @@ def test_dump_and_reload(controller, tmp_path):
     finally:
         running.close()
         wait_future(client.set_parameters([Parameter('wrench_offset', value=[])]))
+
+
+def test_the_sim_plant_impl_is_read_at_start_and_refused_at_run_time():
+    """``plant_impl:=python`` runs pinocchio's plant; a run-time set or a bad value is refused."""
+    running = _running(lambda ctx: [
+        SimNode(context=ctx, parameter_overrides=[Parameter('plant_impl', value='python')]),
+        Node('param_tester', context=ctx)])
+    try:
+        sim, tester = running.nodes
+        client = AsyncParameterClient(tester, 'sim')
+        assert client.wait_for_services(timeout_sec=TIMEOUT)
+        assert _get(client, 'plant_impl') == 'python' and sim.sim.impl == 'python'
+        (result,) = _set(client, plant_impl='compiled')
+        assert not result.successful and result.reason
+        assert _get(client, 'plant_impl') == 'python' and sim.sim.impl == 'python'
+        with pytest.raises(ValueError, match='plant_impl must be one of'):
+            SimNode(context=running.context,
+                    parameter_overrides=[Parameter('plant_impl', value='fast')])
+    finally:
+        running.close()

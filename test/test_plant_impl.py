@@ -9,6 +9,7 @@ joint and a rotated base frame, a surface moved mid-run, the brakes and a NaN ef
 """
 from __future__ import annotations
 
+from hybrid_force_controller.core.model.linalg import all_finite
 from hybrid_force_controller.core.model.robot_model import RobotModel
 from hybrid_force_controller.core.offline.arm7 import panda_model, PANDA_Q0
 from hybrid_force_controller.core.offline.environment import make_surface, SURFACE_SHAPES
@@ -120,6 +121,18 @@ def test_the_brakes_and_a_bad_effort():
     _assert_same(*(s.measure() for s in sims))  # the refused effort changed nothing
     with pytest.raises(SimulatorError, match='plant_impl'):
         ArmSimulator(ARMS['paper'][0], None, np.zeros(2), impl='fast')
+
+
+@pytest.mark.parametrize('x, finite', [
+    ([1.0, -2.0], True), ([1e200, 1.0], True),  # its square overflows: still finite
+    ([np.nan, 0.0], False), ([np.inf, 0.0], False), ([-np.inf, np.inf], False)])
+def test_all_finite_accepts_every_finite_effort_and_no_other(x, finite):
+    assert all_finite(np.array(x)) is finite
+    if not finite:  # the plant refuses it, whichever runs
+        for impl in ('compiled', 'python'):
+            with pytest.raises(SimulatorError, match='finite'):
+                ArmSimulator(ARMS['paper'][0], None, np.zeros(2), impl=impl).step(
+                    np.array(x), 1e-3)
 
 
 def test_the_compiled_plant_loads_its_kernels_and_says_so():

@@ -5,7 +5,17 @@ import math
 
 import numpy as np
 
-__all__ = ['damped_inverse', 'sigma_min_sq', 'sigma_min_sq_bound', 'small_inverse']
+__all__ = ['all_finite', 'damped_inverse', 'sigma_min_sq', 'sigma_min_sq_bound', 'small_inverse']
+
+
+def all_finite(x: np.ndarray) -> bool:
+    """
+    Say whether every element of the 1-D float array ``x`` is finite.
+
+    ``x·x`` first (0.3 us; NaN and inf make it non-finite): the per-element test (1 us) runs only
+    when that fails, so a huge but finite value whose square overflows is still accepted.
+    """
+    return math.isfinite(x.dot(x)) or bool(np.isfinite(x).all())
 
 
 def small_inverse(A: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import pinocchio as pin
 
 from .environment import Surface
 from .plant_compiled import compiled_plant, surface_array
+from ..model.linalg import all_finite
 from ..model.robot_model import RobotModel
 from ..runtime.contact import in_contact
 
@@ -120,8 +121,7 @@ class ArmSimulator:
     def step(self, tau: np.ndarray, dt: float) -> Measurement:
         """Advance ``dt`` seconds with the efforts ``tau`` held constant."""
         tau = np.asarray(tau, dtype=float)
-        if tau.shape != (self.model.n,) or not (  # the dot: cheap; the exact test if not finite
-                math.isfinite(tau.dot(tau)) or np.isfinite(tau).all()):
+        if tau.shape != (self.model.n,) or not all_finite(tau):
             raise SimulatorError(f'effort must be {self.model.n} finite values, got {tau}')
         if not (dt > 0.0 and math.isfinite(dt)):
             raise SimulatorError(f'dt must be finite and > 0, got {dt}')

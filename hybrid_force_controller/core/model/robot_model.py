@@ -316,6 +316,12 @@ class RobotModel:
         R_W_root = self._R_W_root
         return R_W_root @ (p - self._p_root_W), R_W_root @ R, R_W_root @ J
 
+    def root_in_base(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(R, p)`` of :meth:`base_from_root`'s ``R (x - p)`` (identity, 0: none)."""
+        if self._R_W_root is None:
+            return np.eye(3), np.zeros(3)
+        return self._R_W_root.copy(), self._p_root_W.copy()
+
     def _require_square(self) -> None:
         if self.redundant:
             raise ModelError('task-space terms (35)-(37) need a square Jacobian; '

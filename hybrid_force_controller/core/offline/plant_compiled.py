@@ -24,11 +24,12 @@ __all__ = ['CompiledPlant', 'compiled_plant', 'plant_kernels_cached', 'surface_a
 
 _SHAPES = {'plane': 1.0, 'sphere': 2.0, 'cylinder': 3.0}
 _AGREEMENT = 1e-9  # relative, at the test state (rounding is 1e-15)
+_JF, _SF = 51, 15  # plant_kernels.py's widths of a joint's row of jf, and of sf
 
 
 def surface_array(surface: Surface | None) -> np.ndarray:
     """Return the kernels' ``sf``: shape code, k, x0, n, radius, centre, axis (zeros if none)."""
-    sf = np.zeros(15)
+    sf = np.zeros(_SF)
     if surface is not None:
         sf[0], sf[1] = _SHAPES[surface.shape], surface.k
         sf[2:5], sf[5:8] = surface.x0_W, surface.n_W
@@ -92,7 +93,7 @@ def _model_arrays(model: RobotModel) -> tuple[np.ndarray, np.ndarray, np.ndarray
     m, n = model.model, model.n
     data = m.createData()
     pin.forwardKinematics(m, data, pin.neutral(m), np.zeros(m.nv))
-    ji, jf = np.zeros(2 * n + 1, dtype=np.int64), np.zeros((n, 51))
+    ji, jf = np.zeros(2 * n + 1, dtype=np.int64), np.zeros((n, _JF))
     for i in range(1, m.njoints):
         S = np.asarray(data.joints[i].S).reshape(-1) if m.joints[i].nv == 1 else np.zeros(6)
         v, w = S[:3], S[3:]
@@ -109,10 +110,9 @@ def _model_arrays(model: RobotModel) -> tuple[np.ndarray, np.ndarray, np.ndarray
                                     m.inertias[i].matrix().reshape(-1)))
     frame = m.frames[model.frame_id]
     ji[2 * n] = frame.parentJoint - 1
-    R_W_root = model._R_W_root
-    base = ((np.eye(3), np.zeros(3)) if R_W_root is None else (R_W_root, model._p_root_W))
+    R_W_root, p_root = model.root_in_base()
     cf = np.concatenate((m.gravity.linear, frame.placement.rotation.reshape(-1),
-                         frame.placement.translation, base[0].reshape(-1), base[1]))
+                         frame.placement.translation, R_W_root.reshape(-1), p_root))
     return ji, np.ascontiguousarray(jf), cf
 
 

@@ -32,9 +32,8 @@ import numba as nb
 from numba import float64, int64, void
 import numpy as np
 
-__all__ = ['JF', 'SF', 'contact', 'step']
+__all__ = ['contact', 'step']
 
-JF, CF, SF = 51, 27, 15  # widths of jf's rows, cf and sf
 _A1, _A2, _I1 = float64[:], float64[:, :], int64[:]
 _OPTS = {'cache': True, 'nogil': True}
 

@@ -96,9 +96,10 @@ def _running(pid: int) -> bool:
     ('controller', ['-p', 'executor:=single_threaded']),
     ('controller', ['-p', 'tick_mode:=joint_state']),
     ('sim', []),
+    ('sim', ['-p', 'executor:=single_threaded']),  # its spin loop's spin_once on that executor
     ('sim', ['-p', 'lockstep:=true']),
 ], ids=['controller', 'controller_single_threaded', 'controller_joint_state', 'sim',
-        'sim_lockstep'])
+        'sim_single_threaded', 'sim_lockstep'])
 def test_sigint_ends_a_running_node_cleanly(tmp_path, exe, args):
     """Both nodes run (a closed loop), then the one under test gets SIGINT."""
     other = 'sim' if exe == 'controller' else 'controller'

@@ -29,6 +29,10 @@ the sender's clock offset less the transport delay.
   new skew for ``relearn_after`` (the runtime uses 2 ``state_timeout``) with no accepted
   message between them, the sender's clock really moved (an NTP step): the stream learns the
   new offset and goes on, so nothing locks the stream out for longer than that.
+* A relearned sample is dated when it arrived, but never before the last date the stream gave:
+  that one may be dated up to ``lead`` after its arrival, and a relearn in a burst comes
+  microseconds later; dated earlier, the runtime dropped it as older than the last one (s58g,
+  docs/results.md section 40).
 * In the first ``LEARN_S`` two refused messages in a row that agree are enough: the offset was
   learned from the first message, which may have been the stray one. Fast DDS's first send to
   a reader that just joined can sleep up to 333 ms, so a stream's first sample can come that
@@ -88,6 +92,7 @@ class SenderClock:
         """Forget the offset (the next message is learned from)."""
         self.offset: float | None = None  # d_hat, s: sender's clock minus the controller's
         self._t_first = self._t_last = -math.inf  # reception of the first and last message
+        self._t_out = -math.inf  # the last date given (a relearned sample is never older)
         self._cand: float | None = None  # the skew refused messages agree on, since when
         self._cand_since = 0.0
 
@@ -106,8 +111,10 @@ class SenderClock:
         dev = skew - d
         if abs(dev) > self.tolerance:
             if self._agreed(skew, t_recv):
-                self.relearns += 1
-                return self._learn(skew, t_recv)
+                self.relearns += 1  # dated when it came, never before the last date given
+                last = self._t_out
+                self._t_out = max(self._learn(skew, t_recv), last)
+                return self._t_out
             self.startup_refusals += t_recv - self._t_first < LEARN_S
             raise ImplausibleStamp(
                 f'{self.stream} stamp jumps {abs(dev):.4g} s {_side(dev)} its sender'
@@ -122,11 +129,12 @@ class SenderClock:
             d -= min(-dev, RATE_DOWN * gap)
         self.offset, self._t_last = d, t_recv
         t, t_max = t_stamp - d, t_recv + self.lead
-        return t if t < t_max else t_max
+        self._t_out = t if t < t_max else t_max
+        return self._t_out
 
     def _learn(self, skew: float, t_recv: float) -> float:
         self.offset, self._cand = skew, None
-        self._t_first = self._t_last = t_recv
+        self._t_first = self._t_last = self._t_out = t_recv
         return t_recv
 
     def _agreed(self, skew: float, t_recv: float) -> bool:

@@ -12,7 +12,7 @@ def all_finite(x: np.ndarray) -> bool:
     """
     Say whether every element of the 1-D float array ``x`` is finite.
 
-    The sum of its values as Python floats first (0.4 us for 7; NaN and inf make it
+    The sum of its values as Python floats first (0.17 us for 7; NaN and inf make it
     non-finite, and Python's sum overflows without numpy's warning): the per-element test
     (1 us) runs only when that fails, so huge finite values whose sum overflows still pass.
     """

@@ -111,10 +111,8 @@ class SenderClock:
         dev = skew - d
         if abs(dev) > self.tolerance:
             if self._agreed(skew, t_recv):
-                self.relearns += 1  # dated when it came, never before the last date given
-                last = self._t_out
-                self._t_out = max(self._learn(skew, t_recv), last)
-                return self._t_out
+                self.relearns += 1
+                return self._learn(skew, t_recv, not_before=self._t_out)
             self.startup_refusals += t_recv - self._t_first < LEARN_S
             raise ImplausibleStamp(
                 f'{self.stream} stamp jumps {abs(dev):.4g} s {_side(dev)} its sender'
@@ -132,10 +130,12 @@ class SenderClock:
         self._t_out = t if t < t_max else t_max
         return self._t_out
 
-    def _learn(self, skew: float, t_recv: float) -> float:
+    def _learn(self, skew: float, t_recv: float, not_before: float = -math.inf) -> float:
+        """Learn ``skew``; date the sample when it came, never before ``not_before``."""
         self.offset, self._cand = skew, None
-        self._t_first = self._t_last = self._t_out = t_recv
-        return t_recv
+        self._t_first = self._t_last = t_recv
+        self._t_out = t_recv if t_recv > not_before else not_before
+        return self._t_out
 
     def _agreed(self, skew: float, t_recv: float) -> bool:
         """

@@ -4,7 +4,8 @@ The layer rule and the groups inside each layer, derived from the tree.
 Layers: core <- tools <- ros (and sim_node).
 
 * ``core/`` imports only the standard library, numpy, pinocchio and ``core`` itself, and numba
-  in ``core/law/*kernels.py`` and ``core/offline/plant_kernels.py`` alone (the compiled tick
+  in ``core/law/*kernels.py``, ``core/runtime/tick_kernels.py`` and
+  ``core/offline/plant_kernels.py`` alone (the compiled tick
   and plant, imported when ``tick_impl`` or ``plant_impl`` is compiled: the Python ones never
   load numba);
 * ``tools/`` imports the standard library, numpy, rosbags, matplotlib, ``core`` and ``tools``
@@ -171,14 +172,15 @@ def test_numba_is_imported_only_by_the_kernels():
     users = {str(p.relative_to(ROOT)) for p in [*PKG.rglob('*.py'), *(ROOT / 'sim_node').rglob(
         '*.py')] if 'numba' in {n.split('.')[0] for n in _imports(p)}}
     assert users == {f'hybrid_force_controller/core/{name}.py' for name in (
-        'law/kernels', 'law/step_kernels', 'law/stiffness_kernels', 'offline/plant_kernels')}
+        'law/kernels', 'law/step_kernels', 'law/stiffness_kernels', 'runtime/tick_kernels',
+        'offline/plant_kernels')}
 
 
 _PYTHON_TICK = (
-    'from hybrid_force_controller.core.law.control_law import HybridForceController as H; '
+    'from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime as C; '
     'from hybrid_force_controller.core.model.robot_model import RobotModel; '
     'from hybrid_force_controller.core.config.params import build_params; '
-    "m = RobotModel.from_urdf(); H(m, build_params(m, {'tick_impl': 'python'}).law)")
+    "m = RobotModel.from_urdf(); C(m, build_params(m, {'tick_impl': 'python'}))")
 _PYTHON_PLANT = (
     'import numpy as np; from hybrid_force_controller.core.offline.simulator import '
     'ArmSimulator; from hybrid_force_controller.core.model.robot_model import RobotModel; '

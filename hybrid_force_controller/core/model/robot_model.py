@@ -192,21 +192,30 @@ class RobotModel:
         rows give ``J_w`` and ``Jdot_w``. Every array is new (the simulator shares this model's
         pinocchio data).
         """
-        model, data, fid, ax = self.model, self.data, self.frame_id, self.task_index
-        pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
-        T_root_ee = pin.updateFramePlacement(model, data, fid)
-        J6 = pin.getFrameJacobian(model, data, fid, _LWA)
-        Jdot6 = pin.getFrameJacobianTimeVariation(model, data, fid, _LWA)
+        ax = self.task_index
+        p_W, R, J6, Jdot6 = self.frame_kinematics(q, qdot)
         R_W_root = self._R_W_root
-        if R_W_root is None:  # base_link is the root: the task rows as they are
-            p_W, R = T_root_ee.translation, T_root_ee.rotation
-        else:  # express everything in base_link
-            p_W, R, _ = self.base_from_root(T_root_ee.translation, T_root_ee.rotation, J6[:3])
+        if R_W_root is not None:  # express everything in base_link
+            p_W, R, _ = self.base_from_root(p_W, R, J6[:3])
             J6 = np.vstack((R_W_root.dot(J6[:3]), R_W_root.dot(J6[3:])))
             Jdot6 = np.vstack((R_W_root.dot(Jdot6[:3]), R_W_root.dot(Jdot6[3:])))
         J = J6[ax]
         return TaskKinematics(p_W, R, p_W[ax], J.dot(qdot), J, Jdot6[ax], J6[3:], Jdot6[3:],
                               J6, Jdot6)
+
+    def frame_kinematics(self, q: np.ndarray, qdot: np.ndarray) -> tuple[np.ndarray, ...]:
+        """
+        Return the tool's p, R and its LOCAL_WORLD_ALIGNED J6, J6dot, in the root frame.
+
+        Four pinocchio calls, each array new (p and R views of a new placement).
+        :meth:`kinematics` takes its terms from them (in base_link), and so does the runtime's
+        steady tick (steady_tick.py, base_link the root).
+        """
+        model, data, fid = self.model, self.data, self.frame_id
+        pin.computeJointJacobiansTimeVariation(model, data, q, qdot)
+        T_root_ee = pin.updateFramePlacement(model, data, fid)
+        return (T_root_ee.translation, T_root_ee.rotation, pin.getFrameJacobian(
+            model, data, fid, _LWA), pin.getFrameJacobianTimeVariation(model, data, fid, _LWA))
 
     def regressor_q(self, q: np.ndarray, qdot: np.ndarray, qdot_r: np.ndarray,
                     qddot_r: np.ndarray) -> np.ndarray:

@@ -57,6 +57,7 @@ from .motion import Motion, reference_changed
 from .recovery import Recovery
 from .run_clock import RunClock
 from .runtime_interface import RuntimeInterface
+from .steady_tick import SteadyTick
 from .surface import SurfaceNormal
 from ..config.params import ControllerParams
 from ..law.control_law import ApproachRef, ControlError, ControlOutput, HybridForceController
@@ -106,6 +107,8 @@ class ControllerRuntime(RuntimeInterface):
         self._restarted = False  # a restart's episode begins at the next start
         self._fresh_since = math.inf  # since when both inputs are fresh (SAFE_DWELL_S)
         self._catch_up = CatchUp()  # after stale inputs or a stall (catch_up.py, (C1))
+        # tick_impl compiled: a steady tick in two kernels (steady_tick.py), the rest below
+        self._steady = SteadyTick(self) if self.ctrl._tick.fused else None
         self._install(params)
 
     # ------------------------------------------------------------------ parameters
@@ -141,6 +144,8 @@ class ControllerRuntime(RuntimeInterface):
         self.recovery.configure(params.recovery, params.law.theta_min, params.law.theta_max)
         self._period = 1.0 / rt.rate_hz
         self.ctrl.set_force_setpoint(self._motion.force.value, self._motion.force.fdot)
+        if self._steady is not None:
+            self._steady.configure(params)
 
     def _reference_at(self, tau: float) -> Reference:
         """Return the reference at the run's time ``tau`` (n_hat's tangent plane: surface.py)."""
@@ -148,7 +153,10 @@ class ControllerRuntime(RuntimeInterface):
 
     # ------------------------------------------------------------------ tick
     def tick(self, t: float) -> TickOutput:
-        """Compute the command for time ``t`` from the latest inputs."""
+        """Compute the command for time ``t`` from the latest inputs (steady: steady_tick.py)."""
+        out = None if self._steady is None else self._steady.tick(t)
+        if out is not None:
+            return out
         self.counters['ticks'] += 1
         c = self._clock
         if t < c.t_tick - self._period:  # the clock jumped back (e.g. a restarted /clock)

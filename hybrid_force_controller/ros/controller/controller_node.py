@@ -55,9 +55,9 @@ from ..common.runner import EXECUTORS, print_help, run_node, wants_help
 from ..common.scheduling import schedule_process
 from ...core.config.params import build_params, CONTROLLER_SCHEMA, MODEL_SCHEMA
 from ...core.config.params import ParameterValidationError
-from ...core.law.tick_impl import kernels_cached
 from ...core.model.robot_model import RobotModel
 from ...core.runtime.controller_runtime import ControllerRuntime, InputError, Mode
+from ...core.runtime.steady_tick import kernels_cached
 
 __all__ = ['ControllerNode', 'main']
 

@@ -7,7 +7,8 @@ controller_runtime.py's) and compiled (its steady ticks in two kernels), input f
 field of every tick's output must agree to a relative 1e-12, and at the end the counters, the
 mode, theta_hat, h, the stiffness estimate and the recovery's state. Variants exercise what the
 steady tick commits: saturated efforts and a rate limit, a wrench in the base frame, a held
-point, ticks without a new state and late states, an episode of the recovery.
+point, ticks without a new state and late states, the stiffness estimate off, an episode of the
+recovery.
 """
 from __future__ import annotations
 
@@ -103,6 +104,7 @@ CASES = {
     'paper, efforts saturated and rate-limited': ({'effort_limits': [100.0, 2.5],
                                                    'max_effort_rate': 0.003}, {}),
     'paper, wrench in the base frame': ({}, {'base_frame': True}),
+    'paper, no stiffness estimate': ({'stiffness_estimation': False}, {}),
     'paper, a held point': ({}, {'hold_at': 1500}),
     'paper, stale ticks and late states': ({'max_integration_dt': 0.0015},
                                            {'stale_every': 7, 'skip_every': 11}),

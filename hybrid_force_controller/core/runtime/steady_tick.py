@@ -16,7 +16,7 @@ Then the tick is pinocchio's kinematics, :func:`~.tick_kernels.steady_front`, th
 last tick's errors begin (recovery.py, as the reference's ``_transitions``), pinocchio's two
 regressor calls, :func:`~.tick_kernels.steady_back`, and the commit of what they computed into
 the runtime's parts (the filter, the clock, the contact, the law's theta_hat and h, the
-limiter), then the stiffness estimate and the recovery's statistics as in the reference. Any
+limiter, the stiffness loop and k_s), then the recovery's statistics as in the reference. Any
 other tick, or one the kernels find not steady, returns None and the reference runs
 (``tick_impl: python`` always runs it; test_steady_tick compares the two tick by tick). The
 kernels change nothing; only an episode begun before a non-finite effort was found stays
@@ -74,14 +74,14 @@ class SteadyTick:
         rt = self._rt
         self.enabled = (rt.ctrl._tick.fused and not params.orientation.active
                         and not rt._normal.enabled and rt.model._R_W_root is None
-                        and rt._in._weight_W is None)
+                        and rt._in._weight_W is None and hasattr(rt._stiffness.estimator, '_st'))
         if len(rt.ctrl.theta_hat) != self._theta.size:
             self._size(len(rt.ctrl.theta_hat))
 
     def warm_up(self) -> None:
         """Call both kernels once (numba finishes a loaded kernel at its first call)."""
         n, m, z3 = self._n, self._m, np.zeros(3)
-        k, eye = self._k, np.eye(3)
+        k, eye, sk = self._k, np.eye(3), self._rt.ctrl.stiffness_kernels
         J6 = np.zeros((6, n))
         code = k.steady_front(self._W, n, m, J6, J6, z3, eye, self._ax, np.zeros(n), True,
                               False, -eye[2], 1.0, 0.0, 1e-3, z3, 10.0, 1e-3, eye[2], 0.0, 1.0,
@@ -90,10 +90,13 @@ class SteadyTick:
                               np.zeros((2, 3)), -math.inf, 0.0, np.zeros((2, 3)),
                               np.zeros((2 * m, 2 * m + 11)), np.eye(n), 0.1)
         P = np.zeros((n, self._theta.size))
+        st = np.zeros(len(sk.STATE))
+        st[sk.STATE['_k_s']] = 1.0  # a k_s command of 1 N/m, the rest 0
         k.steady_back(self._W, n, m, P, P, P, False, self._theta.copy(), 1.0, 0.0,
                       np.eye(self._theta.size), 1.0, 0.1, 0.0, 1e-3, self._theta - 1.0,
                       self._theta + 1.0, 0.0, 1.0, 0.0, 1e-3, np.zeros(n), 1.0, np.zeros(n),
-                      True, np.ones(n), np.empty(n))
+                      True, np.ones(n), np.empty(n), st, np.ones(len(sk.CONFIG)), 0.0, 0.0,
+                      1.0, z3, 1e-3, False)
         self._W[:] = 0.0
         assert code in (0, 2)
 
@@ -108,7 +111,7 @@ class SteadyTick:
                 or t - clock.t_tick > rt.recovery.cfg.stall_periods * period
                 or rt._catch_up.active or rt._catch_up.silent or inputs.tare is not None
                 or motion.path is not None or motion.force_ramping or ctrl._moving is not None
-                or (s.t - motion.handover.t_c) / HANDOVER_S < 1.0
+                or (s.t - motion.handover.t_c) / HANDOVER_S < 1.0 or rt._stiffness._paused
                 or not inputs.filter.ready or inputs.stale(t)):
             return None
         frame = w.frame_id
@@ -143,8 +146,8 @@ class SteadyTick:
 
     def _back(self, rt, ctrl, s) -> np.ndarray | None:
         """Run pinocchio's regressors and steady_back; the limited effort (None: not finite)."""
-        model, d, k = rt.model, ctrl._d, ctrl._k
-        g, sc, lim = d.gains, self._sc, rt._command.limiter
+        model, d, k, loop = rt.model, ctrl._d, ctrl._k, rt._stiffness
+        g, sc, lim, est = d.gains, self._sc, rt._command.limiter, loop.estimator
         P, known = model.regressor_map
         dt_int = float(sc[1])
         adapt = sc[10] == 0.0 and not rt.recovery.frozen  # not damped, no episode holding it
@@ -155,13 +158,14 @@ class SteadyTick:
             known, ctrl.theta_hat, g.k_d, g.k_null, d.Gamma_inv, g.k_a, g.adapt_error_limit,
             g.adapt_dead_zone, self._dt_adapt, g.theta_min, g.theta_max, ctrl.h, k.h_limit,
             ctrl.f_d, dt_int, s.qdot, lim.max_rate, _EMPTY1 if last is None else last,
-            last is not None, lim.limits, tau)
+            last is not None, lim.limits, tau, est._st, est._cf, *loop._n, self._p_W,
+            float(sc[0]), loop._known)
         return tau if finite else None
 
     def _commit(self, rt, t, clock, inputs, motion, ctrl, s, tau) -> TickOutput:
         """Write the kernels' results into the runtime's parts, as the reference's tick does."""
         (dt, dt_int, why, f_n, x_seen, r_n, rdot_n, _, f_dt, f_a, state, h, saturated,
-         e_norm) = self._sc[:14].tolist()
+         e_norm, known, k_s, log_rate) = self._sc[:17].tolist()
         counters, flt = rt.counters, inputs.filter
         counters['ticks'] += 1
         self.ticks += 1
@@ -185,8 +189,12 @@ class SteadyTick:
                 ctrl.theta_hat = theta if ctrl._project is None else ctrl._project(theta)
             ctrl.h = h
         counters['singular_ticks'] += ctrl.damped
-        if dt > 0.0:
-            rt._normal.feed_stiffness(rt._stiffness, ctrl, f_n, self._p_W, dt, dt_int, True)
+        if dt > 0.0:  # the stiffness estimate stepped (steady_back): its loop, k_s into the law
+            loop = rt._stiffness
+            loop.contacts += not loop._touching
+            loop._touching, loop._known = True, known == 1.0
+            if loop.estimator.config.enabled:
+                ctrl.set_k_s(k_s, log_rate)
         motion.r_n, motion.rdot_n = r_n, rdot_n
         rt.recovery.note(t, abs(f_n - ctrl.f_d), e_norm, True, ctrl.theta_hat)
         return self._output(rt, clock, tau, saturated)

@@ -15,13 +15,15 @@ formula:
   position along n (motion.note_contact), the reference's rows (step_kernels.reference_rows),
   the force loop's ``r_n``, ``rdot_n`` (control_law.force_loop_r_n) and step_kernels.law_front;
 - :func:`steady_back`: step_kernels.law_back (eq. (5), eq. (26)), the force integral h (eq. (20),
-  control_law._integrate_h), the effort's rate limit and clamp (effort.EffortLimiter) and
-  ``|e|`` for the recovery's statistics.
+  control_law._integrate_h), the effort's rate limit and clamp (effort.EffortLimiter),
+  ``|e|`` for the recovery's statistics and, for a new state, the stiffness estimate's step
+  and its k_s command (stiffness_loop.update: stiffness_kernels.update, k_s_command).
 
-Neither changes the runtime's state: they write into the workspace ``W`` (:func:`layout`) and
-the arrays they are given, and the caller commits (steady_tick.py), so a tick that turns out
-not to be steady (contact lost, a singular pose, a non-finite effort) runs the reference from
-the state it began with. Numba's cache sees only this file's stamp (step_kernels.py): it is
+Neither changes the runtime's state until the tick is known to be steady: they write into the
+workspace ``W`` (:func:`layout`) and the arrays they are given, and the caller commits
+(steady_tick.py), so a tick that turns out not to be steady (contact lost, a singular pose, a
+non-finite effort) runs the reference from the state it began with. Only the stiffness
+estimate's state array is stepped in place, once the effort is finite. Numba's cache sees only this file's stamp (step_kernels.py): it is
 dropped at import when a kernel file it calls is newer.
 """
 from __future__ import annotations
@@ -33,12 +35,13 @@ import numba as nb
 from numba import boolean, float64, int64, types
 import numpy as np
 
+from ..law import stiffness_kernels as sk
 from ..law.kernels import _OPTS
 from ..law.step_kernels import drop_stale_cache, law_back, law_front, reference_rows
 
 __all__ = ['layout', 'SC', 'steady_back', 'steady_front']
 
-for _dependency in ('kernels.py', 'step_kernels.py'):  # before the kernels below load
+for _dependency in ('kernels.py', 'step_kernels.py', 'stiffness_kernels.py'):  # before they load
     drop_stale_cache(Path(__file__), Path(__file__).parents[1] / 'law' / _dependency)
 
 _A3, _A2, _A1, _I1 = float64[:, :, :], float64[:, :], float64[:], int64[:]
@@ -46,8 +49,8 @@ _W = float64[::1]  # the workspace: contiguous (its parts are reshaped)
 #: the scalars steady_front and steady_back write at the head of W
 SC = {name: i for i, name in enumerate((
     'dt_state', 'dt_int', 'why', 'f_n', 'x_seen', 'r_n', 'rdot_n', 'f_n_task', 'filter_dt',
-    'filter_a', 'state', 'h', 'saturated', 'e_norm'))}
-N_SC = 16
+    'filter_a', 'state', 'h', 'saturated', 'e_norm', 'known', 'k_s', 'log_rate'))}
+N_SC = 20
 WHY_STALE, WHY_LATE = 1.0, 2.0  # run_clock.state_step's 'stale' and 'late'
 CONTACT_FORCE_MIN_N = 0.05  # contact.py's (test_steady_tick checks they are one value)
 
@@ -170,14 +173,18 @@ def steady_front(W, n, m, J6, Jdot6, p_W, R, ax, qdot, new_wrench, frame_ee, F_S
 
 @nb.njit(boolean(_W, int64, int64, _A2, _A2, _A2, boolean, _A1, float64, float64, _A2,
                  float64, float64, float64, float64, _A1, _A1, float64, float64, float64,
-                 float64, _A1, float64, _A1, boolean, _A1, _A1), **_OPTS)
+                 float64, _A1, float64, _A1, boolean, _A1, _A1, _A1, _A1, float64, float64,
+                 float64, _A1, float64, boolean), **_OPTS)
 def steady_back(W, n, m, R1, R2, P, known, theta_hat, k_d, k_null, Gamma_inv, k_a, error_limit,
                 dead_zone, dt_adapt, lo, hi, h, h_limit, f_d, dt_int, qdot, max_rate, last,
-                has_last, limits, tau):
+                has_last, limits, tau, st, cf, n_x, n_y, n_z, p_W, dt_state, k_known):
     """
-    Fill ``tau`` (limited), W's theta_hat (after the end) and scalars; return tau's finiteness.
+    Fill ``tau`` (limited), W's theta_hat and scalars, step ``st``; return tau's finiteness.
 
-    ``theta_hat``'s next value (eq. (26), with ``dt_adapt`` > 0) goes to W's end.
+    ``theta_hat``'s next value (eq. (26), with ``dt_adapt`` > 0) goes to W's end. With
+    ``dt_state`` > 0 the stiffness estimate (state ``st``, settings ``cf``: stiffness_kernels)
+    takes the sample ``(f_n, n^T p_W)`` in contact, then, when enabled, gives its k_s command
+    over ``dt_int``; ``k_known``: the loop's estimate known before (stiffness_loop.py).
     """
     o = layout(n, m)
     sc = W[:N_SC]
@@ -205,4 +212,12 @@ def steady_back(W, n, m, R1, R2, P, known, theta_hat, k_d, k_null, Gamma_inv, k_
     for i in range(m):
         e2 += e[i] * e[i]
     sc[11], sc[12], sc[13] = h, 1.0 if saturated else 0.0, math.sqrt(e2)
+    if dt_state > 0.0:  # stiffness_loop.update, touching and learning
+        restarts = st[sk.RESTARTS]
+        sk.update(st, cf, sc[3], n_x * p_W[0] + n_y * p_W[1] + n_z * p_W[2], dt_state, True)
+        k_known = st[sk.VALID] != 0.0 or (k_known and st[sk.RESTARTS] == restarts)
+        sc[14] = 1.0 if k_known else 0.0
+        if cf[sk.ENABLED] != 0.0:
+            sc[15] = sk.k_s_command(st, cf, dt_int)
+            sc[16] = st[sk.LOG_RATE]
     return True

@@ -23,8 +23,9 @@ Neither changes the runtime's state until the tick is known to be steady: they w
 workspace ``W`` (:func:`layout`) and the arrays they are given, and the caller commits
 (steady_tick.py), so a tick that turns out not to be steady (contact lost, a singular pose, a
 non-finite effort) runs the reference from the state it began with. Only the stiffness
-estimate's state array is stepped in place, once the effort is finite. Numba's cache sees only this file's stamp (step_kernels.py): it is
-dropped at import when a kernel file it calls is newer.
+estimate's state array is stepped in place, once the effort is finite. Numba's cache sees
+only this file's stamp (step_kernels.py): it is dropped at import when a kernel file it calls
+is newer.
 """
 from __future__ import annotations
 

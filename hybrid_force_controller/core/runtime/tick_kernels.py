@@ -36,9 +36,9 @@ import numba as nb
 from numba import boolean, float64, int64, types
 import numpy as np
 
-from ..law import stiffness_kernels as sk
 from ..law.kernels import _OPTS
 from ..law.step_kernels import drop_stale_cache, law_back, law_front, reference_rows
+from ..law.stiffness_kernels import ENABLED, k_s_command, LOG_RATE, RESTARTS, update, VALID
 
 __all__ = ['layout', 'SC', 'steady_back', 'steady_front']
 
@@ -214,11 +214,11 @@ def steady_back(W, n, m, R1, R2, P, known, theta_hat, k_d, k_null, Gamma_inv, k_
         e2 += e[i] * e[i]
     sc[11], sc[12], sc[13] = h, 1.0 if saturated else 0.0, math.sqrt(e2)
     if dt_state > 0.0:  # stiffness_loop.update, touching and learning
-        restarts = st[sk.RESTARTS]
-        sk.update(st, cf, sc[3], n_x * p_W[0] + n_y * p_W[1] + n_z * p_W[2], dt_state, True)
-        k_known = st[sk.VALID] != 0.0 or (k_known and st[sk.RESTARTS] == restarts)
+        restarts = st[RESTARTS]
+        update(st, cf, sc[3], n_x * p_W[0] + n_y * p_W[1] + n_z * p_W[2], dt_state, True)
+        k_known = st[VALID] != 0.0 or (k_known and st[RESTARTS] == restarts)
         sc[14] = 1.0 if k_known else 0.0
-        if cf[sk.ENABLED] != 0.0:
-            sc[15] = sk.k_s_command(st, cf, dt_int)
-            sc[16] = st[sk.LOG_RATE]
+        if cf[ENABLED] != 0.0:
+            sc[15] = k_s_command(st, cf, dt_int)
+            sc[16] = st[LOG_RATE]
     return True

@@ -8,7 +8,7 @@ field of every tick's output must agree to a relative 1e-12, and at the end the 
 mode, theta_hat, h, the stiffness estimate and the recovery's state. Variants exercise what the
 steady tick commits: saturated efforts and a rate limit, a wrench in the base frame, a held
 point, ticks without a new state and late states, the stiffness estimate off, an episode of the
-recovery.
+recovery, a user's path.
 """
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ import math
 
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.arm7 import panda_model, panda_scenario
+from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
+                                                       square_path_event)
 from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
 from hybrid_force_controller.core.runtime import contact, tick_kernels
 from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
@@ -32,11 +33,16 @@ def panda() -> RobotModel:
     return panda_model()
 
 
-def _stream(model, cfg) -> list:
-    """Return the (t, q, qdot, F_S) the controller of ``cfg``'s closed loop received."""
+def _stream(model, cfg, sent: dict | None = None) -> list:
+    """
+    Return the (t, q, qdot, F_S) the controller of ``cfg``'s closed loop received.
+
+    ``sent``: the loop follows a 4 cm square from 0.5 s on, whose plan and time go there.
+    """
     stream: list = []
-    cfg = ScenarioConfig(**{**vars(cfg), 'input_hook': lambda t, msg: stream.append((t, *msg))
-                            or msg})
+    events = cfg.events if sent is None else [square_path_event(0.5, 0.04, sent)]
+    cfg = ScenarioConfig(**{**vars(cfg), 'events': events,
+                            'input_hook': lambda t, msg: stream.append((t, *msg)) or msg})
     run_scenario(cfg, model)
     return stream
 
@@ -58,10 +64,14 @@ def _same(a, b, what: str) -> None:
 
 
 def _replay(model, stream, runtimes, base_frame=False, hold_at=None, stale_every=0,
-            skip_every=0) -> None:
-    """Feed both runtimes the same inputs and ticks; compare every output."""
+            skip_every=0, path: dict | None = None) -> None:
+    """Feed both runtimes the same inputs and ticks (and ``path``'s plan); compare outputs."""
     names = list(model.joint_names)
     for k, (t, q, qdot, F_S) in enumerate(stream):
+        if path and t >= path['t']:
+            for rt in runtimes:
+                rt.on_path(path['plan'], 1)
+            path = None
         if skip_every and k % skip_every == 0:
             continue  # a late state: the next one comes 2 periods after the last
         frame, F = model.end_effector_link, F_S
@@ -125,12 +135,18 @@ def test_paper_ticks_agree_with_the_reference(case):
         assert nb.counters['saturated_ticks'] > 100
 
 
-def test_panda_ticks_agree_with_the_reference(panda):
-    cfg = panda_scenario(panda, 2.0)
+@pytest.mark.parametrize('with_path', [False, True], ids=['line', 'a square path'])
+def test_panda_ticks_agree_with_the_reference(panda, with_path):
+    """And the path's ticks are steady ones: its clock advanced as the reference's."""
+    cfg, sent = panda_scenario(panda, 2.0), ({} if with_path else None)
     py, nb = _runtimes(panda, cfg, {})
-    _replay(panda, _stream(panda, cfg), (py, nb))
+    _replay(panda, _stream(panda, cfg, sent), (py, nb), path=sent)
     _assert_same_state(py, nb)
     assert nb._steady.ticks >= 0.8 * nb.counters['ticks']
+    if with_path:
+        a, b = py._motion.path, nb._motion.path
+        _same([a.sigma, a.rho, a.rho_rate], [b.sigma, b.rho, b.rho_rate], 'the path clock')
+        assert b.sigma > 0.5 and a.progress() == b.progress()
 
 
 def test_an_episode_runs_steady_ticks_with_theta_hat_held():

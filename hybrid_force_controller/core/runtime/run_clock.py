@@ -63,8 +63,14 @@ class RunClock:
         if gap:
             self.t_used = max(self.t_used, t_state)
             return 0.0, 0.0, ''
-        if t_state <= self.t_used:
+        dt = self.state_dt(t_state, period)
+        if dt == 0.0:
             return 0.0, 0.0, 'stale'
-        dt = period if self.t_used == -math.inf else t_state - self.t_used
         self.t_used = t_state
         return dt, min(dt, limit), 'late' if dt > limit else ''
+
+    def state_dt(self, t_state: float, period: float) -> float:
+        """Return the time :meth:`state_step` would give without a gap (0: no new state)."""
+        if t_state <= self.t_used:
+            return 0.0
+        return period if self.t_used == -math.inf else t_state - self.t_used

@@ -6,7 +6,8 @@ is steady when nothing but the run itself is under way:
 
 * the runtime is ``RUNNING``, not restarted, with no catch-up, stall, backward clock jump or
   stale input, the reference's time started;
-* no tare, path, ramp of f_d or hand-over from an approach;
+* no tare, ramp of f_d or hand-over from an approach (a user's path is steady: its clock
+  advances first, and goes back if the tick turns out not to be);
 * the force loop along the gains' n: no normal estimate, no 6-D task, no tool weight, a ready
   force filter, a wrench in the base or the tool frame, base_link the model's root;
 * and, from the new inputs, the tool touching (the normal force above the contact threshold)
@@ -110,22 +111,27 @@ class SteadyTick:
         if (clock.t0 is None or t < clock.t_tick - period or s is None or w is None
                 or t - clock.t_tick > rt.recovery.cfg.stall_periods * period
                 or rt._catch_up.active or rt._catch_up.silent or inputs.tare is not None
-                or motion.path is not None or motion.force_ramping or ctrl._moving is not None
+                or motion.force_ramping or ctrl._moving is not None
                 or (s.t - motion.handover.t_c) / HANDOVER_S < 1.0 or rt._stiffness._paused
                 or not inputs.filter.ready or inputs.stale(t)):
             return None
         frame = w.frame_id
         if frame != rt.model.base_link and frame != rt.model.end_effector_link:
             return None
-        if not self._front(rt, clock, inputs, motion, ctrl, s, w, frame):
-            return None
-        kind = rt.recovery.triggered()
-        if kind:  # the last tick's errors begin an episode (or it goes on): theta_hat held
-            rt._begin(kind, t)
-        tau = self._back(rt, ctrl, s)
-        if tau is None:
-            return None
-        return self._commit(rt, t, clock, inputs, motion, ctrl, s, tau)
+        path = motion.path  # its clock advances first, as the reference's tick does it
+        saved = None if path is None else (path.sigma, path.rho, path.rho_rate, path.going)
+        if path is not None:
+            motion.advance_path(clock.state_dt(s.t, period), True)  # steady: running, touching
+        if self._front(rt, clock, inputs, motion, ctrl, s, w, frame):
+            kind = rt.recovery.triggered()
+            if kind:  # the last tick's errors begin an episode (or it goes on): theta_hat held
+                rt._begin(kind, t)
+            tau = self._back(rt, ctrl, s)
+            if tau is not None:
+                return self._commit(rt, t, clock, inputs, motion, ctrl, s, tau)
+        if path is not None:  # not steady: the path's clock as it was
+            path.sigma, path.rho, path.rho_rate, path.going = saved
+        return None
 
     def _front(self, rt, clock, inputs, motion, ctrl, s, w, frame: str) -> bool:
         """Run pinocchio's kinematics and steady_front; False: not steady."""
@@ -133,7 +139,7 @@ class SteadyTick:
         self._p_W, R, J6, Jdot6 = model.frame_kinematics(s.q, s.qdot)
         d, k, ref, flt = ctrl._d, ctrl._k, motion.ref, inputs.filter
         g, tau = d.gains, s.t - clock.t0
-        sine = ref.x_hold_W is None
+        sine = ref.path is None and ref.x_hold_W is None
         return 0 == self._k.steady_front(
             self._W, n, m, J6, Jdot6, self._p_W, R, self._ax, s.qdot, inputs._new_wrench,
             frame != model.base_link, w.F_S, w.t, inputs._wrench_prev_t, rt._period, flt._y,

@@ -171,7 +171,7 @@ class SteadyTick:
     def _commit(self, rt, t, clock, inputs, motion, ctrl, s, tau) -> TickOutput:
         """Write the kernels' results into the runtime's parts, as the reference's tick does."""
         (dt, dt_int, why, f_n, x_seen, r_n, rdot_n, _, f_dt, f_a, state, h, saturated,
-         e_norm, known, k_s, log_rate) = self._sc[:17].tolist()
+         e_norm, known, k_s, log_rate) = self._sc[:len(self._k.SC)].tolist()
         counters, flt = rt.counters, inputs.filter
         counters['ticks'] += 1
         self.ticks += 1

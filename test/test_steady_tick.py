@@ -12,15 +12,13 @@ recovery, a user's path.
 """
 from __future__ import annotations
 
-import math
-
 from hybrid_force_controller.core.config.params import build_params
 from hybrid_force_controller.core.model.robot_model import RobotModel
-from hybrid_force_controller.core.offline.arm7 import (panda_model, panda_scenario,
-                                                       square_path_event)
-from hybrid_force_controller.core.offline.scenario import run_scenario, ScenarioConfig
-from hybrid_force_controller.core.runtime import contact, tick_kernels
+from hybrid_force_controller.core.offline.arm7 import panda_model, panda_scenario
+from hybrid_force_controller.core.offline.scenario import ScenarioConfig
+from hybrid_force_controller.core.runtime import tick_kernels
 from hybrid_force_controller.core.runtime.controller_runtime import ControllerRuntime
+from hybrid_force_controller.tools.offline_bench import recorded_stream
 import numpy as np
 import pytest
 
@@ -33,18 +31,9 @@ def panda() -> RobotModel:
     return panda_model()
 
 
-def _stream(model, cfg, sent: dict | None = None) -> list:
-    """
-    Return the (t, q, qdot, F_S) the controller of ``cfg``'s closed loop received.
-
-    ``sent``: the loop follows a 4 cm square from 0.5 s on, whose plan and time go there.
-    """
-    stream: list = []
-    events = cfg.events if sent is None else [square_path_event(0.5, 0.04, sent)]
-    cfg = ScenarioConfig(**{**vars(cfg), 'events': events,
-                            'input_hook': lambda t, msg: stream.append((t, *msg)) or msg})
-    run_scenario(cfg, model)
-    return stream
+def _stream(model, cfg) -> list:
+    """Return the (t, q, qdot, F_S) the controller of ``cfg``'s closed loop received."""
+    return recorded_stream(model, cfg, path=False)[0]
 
 
 def _runtimes(model, cfg, extra: dict) -> list[ControllerRuntime]:
@@ -138,9 +127,10 @@ def test_paper_ticks_agree_with_the_reference(case):
 @pytest.mark.parametrize('with_path', [False, True], ids=['line', 'a square path'])
 def test_panda_ticks_agree_with_the_reference(panda, with_path):
     """And the path's ticks are steady ones: its clock advanced as the reference's."""
-    cfg, sent = panda_scenario(panda, 2.0), ({} if with_path else None)
+    cfg = panda_scenario(panda, 2.0)
+    stream, sent = recorded_stream(panda, cfg, path=with_path)  # a square from 0.5 s on
     py, nb = _runtimes(panda, cfg, {})
-    _replay(panda, _stream(panda, cfg, sent), (py, nb), path=sent)
+    _replay(panda, stream, (py, nb), path=sent)
     _assert_same_state(py, nb)
     assert nb._steady.ticks >= 0.8 * nb.counters['ticks']
     if with_path:
@@ -189,11 +179,12 @@ def test_a_tick_that_is_not_steady_changes_nothing():
     assert not np.array_equal(rt._in.filter.value, before[1])
 
 
-def test_the_kernels_constants_are_the_runtimes():
-    assert tick_kernels.CONTACT_FORCE_MIN_N == contact.CONTACT_FORCE_MIN_N
+def test_the_workspace_holds_every_scalar_the_kernels_write():
     assert tick_kernels.N_SC >= len(tick_kernels.SC)
-    threshold = max(tick_kernels.CONTACT_FORCE_MIN_N, 0.1 * 3.0)  # steady_front's
-    assert math.isclose(contact.contact_threshold(3.0), threshold)
+    n, m = 7, 3
+    offsets = tick_kernels.layout(n, m)
+    assert offsets[1] == tick_kernels.N_SC and list(offsets) == sorted(offsets)
+    assert offsets[15] - offsets[14] == 2 * n and offsets[12] - offsets[11] == n * n
 
 
 def test_the_kernels_read_as_cached_once_compiled():

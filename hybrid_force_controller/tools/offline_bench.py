@@ -95,7 +95,7 @@ def path_tick_figures(model=None) -> dict[str, float]:
     return out
 
 
-def _recorded_stream(model, cfg: ScenarioConfig, path: bool = True) -> tuple[list, dict]:
+def recorded_stream(model, cfg: ScenarioConfig, path: bool = True) -> tuple[list, dict]:
     """
     Run ``cfg`` and return the (stamp s, q, qdot, F_S) the controller received, and the path.
 
@@ -153,7 +153,7 @@ def _paired_medians(model, duration: float, rounds: int, a: dict,
     tilt = (0.0, math.sin(0.3), -math.cos(0.3))
     cfg = panda_scenario(model, duration, surface_normal=tilt, overrides={
         'n': [0.0, 0.0, -1.0], 'n_estimation': True, 'ref_amplitude': [0.0, 0.0, 0.0]})
-    stream, sent = _recorded_stream(model, cfg)
+    stream, sent = recorded_stream(model, cfg)
     theta0 = (model.theta_nominal * np.asarray(cfg.theta_hat0_scale)).tolist()
     k_path = next(k for k, msg in enumerate(stream) if msg[0] >= sent['t'])
     medians = []
@@ -198,7 +198,7 @@ def idle_tick_figures(idle_s: float = 0.0009, rounds: int = 2) -> dict[str, floa
     panda = panda_model()
     for arm, model, cfg in (('paper', None, ScenarioConfig(duration=4.0)),
                             ('7dof', panda, panda_scenario(panda, 4.0))):
-        stream, sent = _recorded_stream(model, cfg, path=model is not None)
+        stream, sent = recorded_stream(model, cfg, path=model is not None)
         runs = {name: [] for name in ('hot', 'idle')}
         for _ in range(rounds):
             for name, idle in (('hot', 0.0), ('idle', idle_s)):

@@ -62,7 +62,7 @@ class SteadyTick:
         self.warm_up()
 
     def _size(self, p: int) -> None:
-        """Allocate the workspace for ``p`` parameters, and its views."""
+        """Allocate the workspace for ``p`` parameters (the model's set: fixed), and its views."""
         o, n, m = self._o, self._n, self._m
         self._W = W = np.zeros(o[15] + p)
         self._sc, self._rows = W[:o[1]], W[o[2]:o[3]].reshape(3, 3)
@@ -76,8 +76,6 @@ class SteadyTick:
         self.enabled = (rt.ctrl._tick.fused and not params.orientation.active
                         and not rt._normal.enabled and rt.model._R_W_root is None
                         and rt._in._weight_W is None and hasattr(rt._stiffness.estimator, '_st'))
-        if len(rt.ctrl.theta_hat) != self._theta.size:
-            self._size(len(rt.ctrl.theta_hat))
 
     def warm_up(self) -> None:
         """Call both kernels once (numba finishes a loaded kernel at its first call)."""

@@ -36,14 +36,17 @@ import numba as nb
 from numba import boolean, float64, int64, types
 import numpy as np
 
+from .contact import CONTACT_FORCE_MIN_N
 from ..law.kernels import _OPTS
 from ..law.step_kernels import drop_stale_cache, law_back, law_front, reference_rows
 from ..law.stiffness_kernels import ENABLED, k_s_command, LOG_RATE, RESTARTS, update, VALID
 
 __all__ = ['layout', 'SC', 'steady_back', 'steady_front']
 
-for _dependency in ('kernels.py', 'step_kernels.py', 'stiffness_kernels.py'):  # before they load
-    drop_stale_cache(Path(__file__), Path(__file__).parents[1] / 'law' / _dependency)
+_HERE = Path(__file__)
+for _dependency in ('law/kernels.py', 'law/step_kernels.py', 'law/stiffness_kernels.py',
+                    'runtime/contact.py'):  # before they load (contact.py: its constant)
+    drop_stale_cache(_HERE, _HERE.parents[1] / _dependency)
 
 _A3, _A2, _A1, _I1 = float64[:, :, :], float64[:, :], float64[:], int64[:]
 _W = float64[::1]  # the workspace: contiguous (its parts are reshaped)
@@ -53,7 +56,6 @@ SC = {name: i for i, name in enumerate((
     'filter_a', 'state', 'h', 'saturated', 'e_norm', 'known', 'k_s', 'log_rate'))}
 N_SC = 20
 WHY_STALE, WHY_LATE = 1.0, 2.0  # run_clock.state_step's 'stale' and 'late'
-CONTACT_FORCE_MIN_N = 0.05  # contact.py's (test_steady_tick checks they are one value)
 
 
 @nb.njit(types.UniTuple(int64, 16)(int64, int64), cache=True)

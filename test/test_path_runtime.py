@@ -169,3 +169,21 @@ def test_the_panda_follows_a_small_square_on_its_tilted_plane():
     check_pinned('panda_path', numbers({**compute_metrics(log, t_start=t_path),
                                         **path_metrics(log, t_start=t_path),
                                         'path_start_s': t_path}))
+
+
+def test_the_logged_position_is_the_references_on_a_path_and_on_a_learnt_normal(model):
+    """desired_position (the offline log's x_d, its own short way) equals reference's x_d_W."""
+    for overrides, path in (({}, False), ({'ref_amplitude': [0.0, 0.0, 0.0]}, True),
+                            ({'n_estimation': True}, False)):
+        loop = Loop(model, **overrides)
+        run(loop, 1)
+        if path:
+            send(loop, [1.0, 1.03])
+        rt, seen = loop.rt, 0
+        for _ in range(1500):
+            loop.step(True)
+            t = loop.t
+            x_d = rt.desired_position(t)
+            assert np.array_equal(x_d, rt.reference(t).x_d_W), (overrides, t)
+            seen += rt._normal.enabled and rt._in.state is not None
+        assert (seen > 0) == ('n_estimation' in overrides)  # the projected branch ran

@@ -163,11 +163,11 @@ class LoopEngine:
         t_k = k * P
         while self._events and self._events[0].t * 1e9 <= t_k:
             self._events.pop(0).action(self.runtime, self.plant)
-        meas = self.meas
-        if not sched.plant_stalled(t_k):
+        meas, running = self.meas, not sched.plant_stalled(t_k)  # the stalls are drawn ahead
+        if running:
             self._to_ctrl.send(sched.state_arrival(t_k), (t_k, meas))
         self.outputs = [self._tick(t) for t in sched.ticks_until(t_k, self._to_ctrl)]
-        if not sched.plant_stalled(t_k):
+        if running:
             cmd = self._to_plant.newest(t_k)
             if cmd is not None:
                 self.tau_plant, self._t_cmd = cmd, t_k
@@ -216,6 +216,9 @@ def run_loop(runtime: ControllerRuntime, plant: Plant, duration: float,
     return LoopEngine(runtime, plant, duration, timing, events, **kwargs).run()
 
 
+_MODE_NAMES = {**{m: m.value for m in Mode}, **{m.value: m.value for m in Mode}}
+
+
 def _ns(t: float) -> int:
     return int(round(t * 1e9)) if math.isfinite(t) else 0
 
@@ -231,12 +234,14 @@ def _deliver(runtime: ControllerRuntime, names: list[str], frame: str, got: tupl
         if msg is None:
             return
     q, qdot, F_S = msg
-    for call in (lambda: runtime.on_joint_state(names, q, qdot, t),
-                 lambda: runtime.on_wrench(frame, F_S, t)):
-        try:
-            call()
-        except ValueError:
-            pass  # dropped and counted by the runtime, as the node's guard does
+    try:  # a refused message is dropped and counted by the runtime, as the node's guard does
+        runtime.on_joint_state(names, q, qdot, t)
+    except ValueError:
+        pass
+    try:
+        runtime.on_wrench(frame, F_S, t)
+    except ValueError:
+        pass
 
 
 class _Recorder:
@@ -269,7 +274,7 @@ class _Recorder:
         if out is not None and out.n_W is not None:
             self.n_hat[k] = out.n_W
         self.tau.append(np.zeros_like(meas.q) if tau is None else tau)
-        self.mode.append('none' if out is None else Mode(out.mode).value)
+        self.mode.append('none' if out is None else _MODE_NAMES[out.mode])
 
     def result(self, delays: list[float]) -> LoopLog:
         return LoopLog(self.t, self.x, self.x_d, self.f, self.f_true, self.f_d, self.theta,

@@ -115,6 +115,8 @@ class Schedule:
     def __post_init__(self) -> None:
         m = self.model
         self.period_ns = _to_ns(m.period)
+        self._compute_ns = _to_ns(m.compute)
+        self._latency_ns = None if m.latency_jitter else _to_ns(m.latency)  # None: drawn
         self._rng = [np.random.default_rng([m.seed, i]) for i in range(4)]
         self._stalls = {who: self._draw_stalls(who, i) for i, who in
                         enumerate(('controller', 'plant'))}
@@ -150,9 +152,10 @@ class Schedule:
         return self._stall_end('plant', t) is not None
 
     def _latency(self, stream: int) -> int:
+        if self._latency_ns is not None:
+            return self._latency_ns
         m = self.model
-        extra = self._rng[stream].exponential(m.latency_jitter) if m.latency_jitter else 0.0
-        return _to_ns(m.latency + extra)
+        return _to_ns(m.latency + self._rng[stream].exponential(m.latency_jitter))
 
     def state_arrival(self, t_pub: int) -> int:
         """When a state published at ``t_pub`` is read by the controller."""
@@ -165,14 +168,11 @@ class Schedule:
 
     def command_arrival(self, t_tick: int) -> int:
         """When a command computed at ``t_tick`` reaches the plant."""
-        return t_tick + _to_ns(self.model.compute) + self._latency(1)
+        return t_tick + self._compute_ns + self._latency(1)
 
     def ticks_until(self, t: int, inbox: Any) -> Iterator[int]:
         """Yield the controller tick times in (last tick, t], in order."""
-        if self.model.tick_on_state:
-            yield from self._event_ticks(t, inbox)
-        else:
-            yield from self._timer_ticks(t)
+        return self._event_ticks(t, inbox) if self.model.tick_on_state else self._timer_ticks(t)
 
     def _start_time(self, want: int) -> int:
         """
@@ -186,7 +186,7 @@ class Schedule:
 
     def _commit(self, start: int) -> int:
         self._last_tick = start
-        self._busy_until = start + _to_ns(self.model.compute)
+        self._busy_until = start + self._compute_ns
         return start
 
     def _timer_ticks(self, t: int) -> Iterator[int]:

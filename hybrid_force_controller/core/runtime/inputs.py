@@ -212,7 +212,7 @@ class WrenchGate:
         """Accept one reading or raise :class:`InputError` saying why not."""
         if len(force) != 3:
             raise InputError(f'wrench is not 3-D: {list(force)}')
-        fx, fy, fz = (float(c) for c in force)
+        fx, fy, fz = float(force[0]), float(force[1]), float(force[2])
         if not math.isfinite(fx + fy + fz):
             raise InputError(f'wrench holds NaN/Inf: {[fx, fy, fz]}')
         if not self._frame_exists(frame_id or ' '):

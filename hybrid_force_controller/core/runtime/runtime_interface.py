@@ -179,7 +179,8 @@ class RuntimeInterface:
 
     def desired_position(self, t: float) -> np.ndarray:
         """Return the reference position at time ``t`` on the caller's clock (base frame)."""
-        return self.reference(t).x_d_W
+        t0 = self._clock.t0
+        return self._normal.position(self._motion, 0.0 if t0 is None else t - t0, self._in)
 
     def reference(self, t: float) -> Reference:
         """Return the reference at time ``t`` on the caller's clock (a path: at its clock)."""

@@ -201,6 +201,12 @@ class SurfaceNormal:
             return motion(tau)
         return self.project(motion.rows(tau), inputs.kin().p_W)
 
+    def position(self, motion: Motion, tau: float, inputs: LatestInputs) -> np.ndarray:
+        """Return :meth:`reference`'s x_d_W alone (the offline log's, at every plant step)."""
+        if not self.enabled or inputs.state is None:
+            return motion.rows(tau)[0]
+        return self.reference(motion, tau, inputs).x_d_W
+
     def feed_stiffness(self, loop: StiffnessLoop, ctrl: HybridForceController, f_n: float,
                        p_W: np.ndarray, dt_state: float, dt_int: float, touching: bool) -> None:
         """Feed the stiffness estimate: along n, or n_hat and only with the tool still (M3)."""

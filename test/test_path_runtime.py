@@ -179,11 +179,13 @@ def test_the_logged_position_is_the_references_on_a_path_and_on_a_learnt_normal(
         run(loop, 1)
         if path:
             send(loop, [1.0, 1.03])
-        rt, seen = loop.rt, 0
+        rt, seen, states = loop.rt, 0, set()
         for _ in range(1500):
             loop.step(True)
             t = loop.t
             x_d = rt.desired_position(t)
             assert np.array_equal(x_d, rt.reference(t).x_d_W), (overrides, t)
             seen += rt._normal.enabled and rt._in.state is not None
+            states.add(rt._motion.path_progress().state)
         assert (seen > 0) == ('n_estimation' in overrides)  # the projected branch ran
+        assert ('running' in states) == path  # the path's rows, not the sine's

@@ -171,7 +171,7 @@ class Schedule:
         return t_tick + self._compute_ns + self._latency(1)
 
     def ticks_until(self, t: int, inbox: Any) -> Iterator[int]:
-        """Yield the controller tick times in (last tick, t], in order."""
+        """Return the controller tick times in (last tick, t], in order, as they come (lazily)."""
         return self._event_ticks(t, inbox) if self.model.tick_on_state else self._timer_ticks(t)
 
     def _start_time(self, want: int) -> int:

@@ -58,6 +58,7 @@ class SteadyTick:
         self._n, self._m = model.n, model.m
         self._ax = np.array(model.task_axes, dtype=np.int64)
         self._o = self._k.layout(self._n, self._m)
+        self._n_sc, self._stale, self._late = len(self._k.SC), self._k.WHY_STALE, self._k.WHY_LATE
         self._size(len(runtime.ctrl.theta_hat))
         self.warm_up()
 
@@ -169,7 +170,7 @@ class SteadyTick:
     def _commit(self, rt, t, clock, inputs, motion, ctrl, s, tau) -> TickOutput:
         """Write the kernels' results into the runtime's parts, as the reference's tick does."""
         (dt, dt_int, why, f_n, x_seen, r_n, rdot_n, _, f_dt, f_a, state, h, saturated,
-         e_norm, known, k_s, log_rate) = self._sc[:len(self._k.SC)].tolist()
+         e_norm, known, k_s, log_rate) = self._sc[:self._n_sc].tolist()
         counters, flt = rt.counters, inputs.filter
         counters['ticks'] += 1
         self.ticks += 1
@@ -178,11 +179,11 @@ class SteadyTick:
             flt._y[:] = self._f_W
             flt._dt, flt._a, inputs._new_wrench = f_dt, f_a, False
         rt._fresh_since = min(rt._fresh_since, t)
-        if why == self._k.WHY_STALE:
+        if why == self._stale:
             counters['stale_ticks'] += 1
         else:
             clock.t_used = s.t
-            counters['late_states'] += why == self._k.WHY_LATE
+            counters['late_states'] += why == self._late
         rt._contact.active, rt._contact._t_below = True, None
         motion.x_seen = x_seen
         ctrl._tick.steady_steps += 1
